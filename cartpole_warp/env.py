@@ -1,0 +1,258 @@
+"""``CartpoleEnv``: the batched cartpole on persistent Warp buffers, with a captured step and autoreset."""
+
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+from . import kernels
+from .config import ConfigError, EnvConfig
+from .scene import Scene, build_scene
+
+
+def _resolve_device(device: str) -> str:
+    """Normalise and check a device string ('cpu', 'cuda', 'cuda:N')."""
+    name = str(device)
+    if name == "cuda":
+        name = "cuda:0"
+    if name == "cpu":
+        return name
+    if not name.startswith("cuda:") or not name[5:].isdigit():
+        raise ConfigError(f"unknown device {device!r}; use 'cpu' or 'cuda:N'")
+    if not wp.is_cuda_available() or not torch.cuda.is_available():
+        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; use --device cpu")
+    if int(name[5:]) >= wp.get_cuda_device_count():
+        raise ConfigError(f"device {device!r} requested but only {wp.get_cuda_device_count()} CUDA device(s) exist")
+    return name
+
+
+class CartpoleEnv:
+    """Batched cartpole, the Isaac Sim "Custom RL Example using Stable Baselines" task.
+
+    ==============  ==================================================================================
+    observation     (N, 4) float32: [cart_pos (m), cart_vel (m/s), pole_angle (rad), pole_vel (rad/s)]
+    action          (N, 1) or (N,) float32, clipped to [-1, 1]; cart force = max_push_effort_n * action
+    reward          1 - pole_angle^2 - 0.01 |cart_vel| - 0.005 |pole_vel|; -2 on the terminating step
+    terminated      |cart_pos| > 3 m or |pole_angle| > pi/2, on the state after the physics step
+    truncated       episode length reaches ``max_episode_length`` env steps (not terminated)
+    reset           cart_pos ~ U(-1, 1), cart_vel ~ U(-0.5, 0.5), pole_angle ~ U(-pi/8, pi/8),
+                    pole_vel ~ U(-pi/4, pi/4); one RNG state per env, seeded by ``seed``
+    ==============  ==================================================================================
+
+    Envs that end are reset within the same ``step``: the returned observation is the new episode's
+    first one, and ``info["final_obs"]`` holds the observation at which the episode ended. ``step`` returns
+    fresh tensors; ``obs_buf`` and friends are the zero-copy views the next step overwrites.
+
+    ``info`` keys (tensors on ``device``): ``final_obs`` (N, 4); ``episode_return`` (N,), ``episode_length``
+    (N,) and ``end_reason`` (N,) int32 (codes named by ``kernels.END_REASONS``), valid where
+    terminated | truncated; ``nonfinite_actions`` and ``nonfinite_states`` (scalars, totals since construction):
+    non-finite actions are applied as 0, and a non-finite physics state ends its episode as a failure whose
+    ``final_obs`` is the last finite observation.
+    """
+
+    num_actions = 1
+    num_obs = 4
+
+    def __init__(self, cfg: EnvConfig):
+        self.cfg = cfg.validate()
+        self.device = _resolve_device(cfg.device)
+        self.num_envs = cfg.num_envs
+        self.max_episode_length = cfg.max_episode_length
+        self.env_dt = cfg.sim.env_dt
+        self.scene: Scene = build_scene(cfg.num_envs, self.device, cfg.sim)
+        self.params = self._task_params()
+        self._streams = self._stream_bridge()
+        self._allocate()
+        wp.launch(kernels.init_rng, dim=self.num_envs, inputs=[cfg.seed], outputs=[self._rng_state], device=self.device)
+        self._launch_reset(self._all_envs)
+        self._graph = None
+        if cfg.sim.capture != "off":
+            with self._on_warp_stream(), wp.ScopedCapture(device=self.device) as capture:
+                self._step_kernels()
+            self._graph = capture.graph
+
+    def _task_params(self) -> kernels.TaskParams:
+        t, s = self.cfg.task, self.scene
+        p = kernels.TaskParams()
+        p.dofs_per_env, p.cart_dof, p.pole_dof = s.dofs_per_env, s.cart_dof, s.pole_dof
+        p.max_push_effort_n = t.max_push_effort_n
+        p.reset_dist_m = t.reset_dist_m
+        p.max_pole_angle_rad = t.max_pole_angle_rad
+        p.failure_reward = t.failure_reward
+        p.alive_reward = t.alive_reward
+        p.pole_angle_weight = t.pole_angle_weight
+        p.cart_vel_weight = t.cart_vel_weight
+        p.pole_vel_weight = t.pole_vel_weight
+        p.reset_half_range = wp.vec4(t.reset_cart_pos_m, t.reset_cart_vel_m_s, t.reset_pole_angle_rad, t.reset_pole_vel_rad_s)
+        p.max_episode_length = self.max_episode_length
+        return p
+
+    def _allocate(self):
+        n, dev = self.num_envs, self.device
+
+        def buf(dtype, shape=n):
+            return wp.zeros(shape, dtype=dtype, device=dev)
+
+        self._rng_state = buf(wp.uint32)
+        self._actions = buf(float)
+        self._obs = buf(wp.vec4)
+        self._final_obs = buf(wp.vec4)
+        self._reward = buf(float)
+        self._terminated = buf(wp.bool)
+        self._truncated = buf(wp.bool)
+        self._episode_length = buf(wp.int32)
+        self._episode_return = buf(float)
+        self._ended_return = buf(float)
+        self._ended_length = buf(wp.int32)
+        self._end_reason = buf(wp.int32)
+        self._nonfinite_actions = buf(wp.int32, 1)
+        self._nonfinite_states = buf(wp.int32, 1)
+        self._states_in = buf(wp.vec4)
+        self._mask_in = buf(wp.bool)
+        self._all_envs = wp.full(n, True, dtype=wp.bool, device=dev)
+
+        self.actions_buf = wp.to_torch(self._actions)
+        self.obs_buf = wp.to_torch(self._obs)
+        self.reward_buf = wp.to_torch(self._reward)
+        self.terminated_buf = wp.to_torch(self._terminated)
+        self.truncated_buf = wp.to_torch(self._truncated)
+        self._episode_length_t = wp.to_torch(self._episode_length)
+        self._states_in_t = wp.to_torch(self._states_in)
+        self._mask_in_t = wp.to_torch(self._mask_in)
+        self._info_views = {
+            "final_obs": wp.to_torch(self._final_obs),
+            "episode_return": wp.to_torch(self._ended_return),
+            "episode_length": wp.to_torch(self._ended_length),
+            "end_reason": wp.to_torch(self._end_reason),
+        }
+        self._counter_views = {
+            "nonfinite_actions": wp.to_torch(self._nonfinite_actions)[0],
+            "nonfinite_states": wp.to_torch(self._nonfinite_states)[0],
+        }
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        """(N,) int32 env steps into the current episode (zero-copy; assigning copies into it)."""
+        return self._episode_length_t
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor):
+        self._episode_length_t.copy_(value)
+
+    def _stream_bridge(self):
+        if self.device == "cpu":
+            return None
+        return wp.stream_from_torch(torch.cuda.current_stream(self.device)), wp.get_stream(self.device)
+
+    class _StreamOrder:
+        """Orders Warp work after pending torch work and torch work after the Warp work (CUDA only)."""
+
+        def __init__(self, streams):
+            self.streams = streams
+
+        def __enter__(self):
+            if self.streams:
+                torch_stream, warp_stream = self.streams
+                warp_stream.wait_stream(torch_stream)
+
+        def __exit__(self, *exc):
+            if self.streams:
+                torch_stream, warp_stream = self.streams
+                torch_stream.wait_stream(warp_stream)
+
+    def _on_warp_stream(self):
+        return self._StreamOrder(self._streams)
+
+    def _step_kernels(self):
+        s, p = self.scene, self.params
+        wp.launch(kernels.apply_actions, dim=self.num_envs, inputs=[self._actions, p],
+                  outputs=[s.control.joint_f, self._nonfinite_actions], device=self.device)
+        s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
+        wp.launch(
+            kernels.finish_step, dim=self.num_envs,
+            inputs=[p],
+            outputs=[self._rng_state, s.state_0.joint_q, s.state_0.joint_qd, self._obs, self._episode_length,
+                     self._episode_return, self._reward, self._terminated, self._truncated, self._final_obs,
+                     self._ended_return, self._ended_length, self._end_reason, self._nonfinite_states],
+            device=self.device,
+        )
+
+    def _launch_reset(self, mask: wp.array):
+        s = self.scene
+        wp.launch(kernels.reset_masked, dim=self.num_envs, inputs=[mask, self.params],
+                  outputs=[self._rng_state, s.state_0.joint_q, s.state_0.joint_qd, self._obs, self._episode_length,
+                           self._episode_return], device=self.device)
+
+    def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
+        expected = f"a torch.Tensor of shape {' or '.join(str(tuple(s)) for s in shapes)}, dtype {dtype}, on {self.device}"
+        if not isinstance(value, torch.Tensor):
+            raise ValueError(f"{name}: expected {expected}; got {type(value).__name__}")
+        if tuple(value.shape) not in [tuple(s) for s in shapes]:
+            raise ValueError(f"{name}: expected {expected}; got shape {tuple(value.shape)}")
+        if value.dtype != dtype:
+            raise ValueError(f"{name}: expected {expected}; got dtype {value.dtype}")
+        if value.device != torch.device(self.device):
+            raise ValueError(f"{name}: expected {expected}; got device {value.device}")
+        return value
+
+    def _outputs(self):
+        info = {k: v.clone() for k, v in self._info_views.items()}
+        info.update({k: v.clone() for k, v in self._counter_views.items()})
+        return info
+
+    def reset(self, seed: int | None = None) -> tuple[torch.Tensor, dict]:
+        """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
+        if seed is not None:
+            wp.launch(kernels.init_rng, dim=self.num_envs, inputs=[int(seed)], outputs=[self._rng_state], device=self.device)
+        with self._on_warp_stream():
+            self._launch_reset(self._all_envs)
+        return self.obs_buf.clone(), self._outputs()
+
+    def step(self, actions: torch.Tensor):
+        """Apply actions for one env step: (obs, reward, terminated, truncated, info), autoresetting ended envs."""
+        n = self.num_envs
+        actions = self._check("actions", actions, ((n, 1), (n,)), torch.float32)
+        self.actions_buf.copy_(actions.reshape(n))
+        with self._on_warp_stream():
+            if self._graph is not None:
+                wp.capture_launch(self._graph)
+            else:
+                self._step_kernels()
+        return (self.obs_buf.clone(), self.reward_buf.clone(), self.terminated_buf.clone(),
+                self.truncated_buf.clone(), self._outputs())
+
+    def set_state(self, states: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Start new episodes from ``states`` (N, 4) [cart_pos, cart_vel, pole_angle, pole_vel] where ``mask``
+        (N,) bool is set (everywhere by default); returns the observations."""
+        n = self.num_envs
+        states = self._check("states", states, ((n, 4),), torch.float32)
+        if not torch.isfinite(states).all():
+            raise ValueError("states: every value must be finite")
+        mask = self._check("mask", mask, ((n,),), torch.bool) if mask is not None else None
+        self._states_in_t.copy_(states)
+        if mask is None:
+            self._mask_in_t.fill_(True)
+        else:
+            self._mask_in_t.copy_(mask)
+        s = self.scene
+        with self._on_warp_stream():
+            wp.launch(kernels.set_states_masked, dim=n, inputs=[self._states_in, self._mask_in, self.params],
+                      outputs=[s.state_0.joint_q, s.state_0.joint_qd, self._obs, self._episode_length,
+                               self._episode_return], device=self.device)
+        return self.obs_buf.clone()
+
+    def get_observations(self) -> torch.Tensor:
+        """The current observations (N, 4), a fresh tensor."""
+        return self.obs_buf.clone()
+
+
+def make_env(num_envs: int | None = None, device: str | None = None, seed: int | None = None,
+             preset: str = "default", **sim_task_overrides) -> CartpoleEnv:
+    """Build a ``CartpoleEnv`` from a preset ('default', 'tutorial' or a YAML path) and overrides.
+
+    ``sim_task_overrides`` take nested dicts, e.g. ``sim={"solver": "mujoco"}``, ``task={"episode_length_s": 5}``.
+    """
+    from .config import env_config
+
+    cfg = env_config(preset, num_envs=num_envs, device=device, seed=seed, **sim_task_overrides)
+    return CartpoleEnv(cfg)
