@@ -22,7 +22,7 @@ CART_JOINT = "cartJoint"
 POLE_JOINT = "poleJoint"
 
 
-class StageError(ValueError):
+class StageError(ConfigError):
     """The USD stage is missing, unreadable or lacks the cartpole joints."""
 
 

@@ -1,0 +1,232 @@
+"""Batched env behaviour: autoreset, truncation, capture, seeding, sizes, bad input."""
+
+import math
+
+import pytest
+import torch
+from pxr import Usd, UsdPhysics
+
+import cartpole_warp
+from cartpole_warp.config import DEFAULT_STAGE
+from conftest import DEVICE, make, random_actions
+
+SAFE = torch.tensor([0.2, 0.1, 0.05, -0.1])
+
+
+def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs():
+    n = 64
+    ending = torch.arange(n) < 10
+    states = SAFE.repeat(n, 1) + 0.01 * torch.arange(n).unsqueeze(1)
+    out_of_range = states.clone()
+    out_of_range[ending, 0] = 3.5
+    reference, env = make(n), make(n)
+    reference.set_state(states.to(DEVICE))
+    env.set_state(out_of_range.to(DEVICE))
+    actions = random_actions(n, 1)[0]
+    ref_obs, *_ = reference.step(actions)
+    obs, reward, terminated, truncated, info = env.step(actions)
+    obs, terminated, final = obs.cpu(), terminated.cpu(), info["final_obs"].cpu()
+
+    assert torch.equal(terminated, ending) and not truncated.any()
+    assert torch.equal(obs[~ending], ref_obs.cpu()[~ending]), "envs that did not end must be untouched"
+    assert torch.equal(final[~ending], obs[~ending])
+    assert (final[ending, 0] > 3.0).all(), "final_obs is the observation before the reset"
+    assert (obs[ending, 0].abs() <= 1.0).all(), "ended envs come back reset"
+    assert (reward.cpu()[ending] == -2.0).all()
+    assert (env.episode_length_buf.cpu()[ending] == 0).all()
+    assert (env.episode_length_buf.cpu()[~ending] == 1).all()
+    assert (info["end_reason"].cpu()[ending] == 1).all()
+
+
+def test_time_outs_are_truncations_not_terminations():
+    env = make(16, task={"episode_length_s": 0.1})
+    assert env.max_episode_length == math.ceil(0.1 / env.env_dt)
+    env.set_state(torch.zeros(16, 4, device=DEVICE))
+    zero = torch.zeros(16, 1, device=DEVICE)
+    for step in range(1, env.max_episode_length + 1):
+        obs, reward, terminated, truncated, info = env.step(zero)
+        assert not terminated.any()
+        assert truncated.all() == (step == env.max_episode_length)
+    assert (info["end_reason"].cpu() == 3).all()
+    assert (info["episode_length"].cpu() == env.max_episode_length).all()
+    torch.testing.assert_close(info["episode_return"].cpu(), torch.full((16,), float(env.max_episode_length)))
+    assert (info["final_obs"].cpu() == 0).all() and (obs.cpu()[:, 0].abs() > 0).any()
+
+
+def test_episode_length_buf_assignment_sets_the_counters():
+    env = make(8, task={"episode_length_s": 1.0})
+    env.set_state(torch.zeros(8, 4, device=DEVICE))
+    env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=DEVICE)
+    _, _, terminated, truncated, _ = env.step(torch.zeros(8, 1, device=DEVICE))
+    assert truncated.all() and not terminated.any()
+
+
+def test_episode_statistics_sum_the_rewards():
+    n, steps = 32, 150
+    env = make(n, seed=5)
+    env.reset()
+    running = torch.zeros(n)
+    lengths = torch.zeros(n, dtype=torch.int32)
+    checked = 0
+    for actions in random_actions(n, steps, seed=5, scale=0.5):
+        _, reward, terminated, truncated, info = env.step(actions)
+        running += reward.cpu()
+        lengths += 1
+        done = (terminated | truncated).cpu()
+        if done.any():
+            torch.testing.assert_close(info["episode_return"].cpu()[done], running[done], rtol=1e-4, atol=1e-3)
+            assert torch.equal(info["episode_length"].cpu()[done], lengths[done])
+            checked += int(done.sum())
+            running[done], lengths[done] = 0.0, 0
+    assert checked >= n
+
+
+def rollout(env, steps, seed=0):
+    env.reset()
+    trajectory = []
+    for actions in random_actions(env.num_envs, steps, seed=seed):
+        obs, reward, terminated, truncated, info = env.step(actions)
+        trajectory.append(torch.cat([obs, reward[:, None], terminated[:, None], truncated[:, None],
+                                     info["final_obs"]], dim=1).cpu())
+    return torch.stack(trajectory)
+
+
+@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+def test_captured_step_equals_uncaptured(solver):
+    captured = rollout(make(64, sim={"solver": solver, "capture": "on"}), 120)
+    plain = rollout(make(64, sim={"solver": solver, "capture": "off"}), 120)
+    assert captured[..., 5].sum() > 0, "the rollout must include terminations"
+    torch.testing.assert_close(captured, plain, rtol=0, atol=1e-6)
+
+
+def test_same_seed_same_trajectory_other_seed_differs():
+    first = rollout(make(64, seed=11), 100)
+    again = rollout(make(64, seed=11), 100)
+    other = rollout(make(64, seed=12), 100)
+    assert torch.equal(first, again)
+    assert not torch.allclose(first, other)
+
+
+def test_reset_with_seed_restarts_the_random_stream():
+    env = make(64, seed=0)
+    first = env.reset(seed=7)[0]
+    env.reset()
+    assert torch.equal(env.reset(seed=7)[0], first)
+
+
+@pytest.mark.parametrize("num_envs", [1, 64, 4096])
+def test_sizes(num_envs):
+    env = make(num_envs)
+    obs, info = env.reset()
+    assert obs.shape == (num_envs, 4) and obs.dtype == torch.float32 and str(obs.device) == env.device
+    for actions in random_actions(num_envs, 30):
+        obs, reward, terminated, truncated, info = env.step(actions)
+    assert reward.shape == terminated.shape == truncated.shape == (num_envs,)
+    assert terminated.dtype == torch.bool and info["final_obs"].shape == (num_envs, 4)
+    assert torch.isfinite(obs).all()
+    assert env.episode_length_buf.shape == (num_envs,)
+    # (N,) actions are accepted as well as (N, 1)
+    env.step(torch.zeros(num_envs, device=DEVICE))
+
+
+@pytest.mark.parametrize(
+    "actions, message",
+    [
+        (torch.zeros(8, 2), "shape"),
+        (torch.zeros(4, 1), "shape"),
+        (torch.zeros(8, 1, dtype=torch.float64), "dtype"),
+        (torch.zeros(8, 1, dtype=torch.int32), "dtype"),
+        (torch.zeros(8, 1, device="meta"), "device"),
+        ([0.0] * 8, "list"),
+    ],
+)
+def test_bad_actions_raise_value_error(actions, message):
+    env = make(8)
+    if isinstance(actions, torch.Tensor) and actions.device.type != "meta":
+        actions = actions.to(DEVICE)
+    with pytest.raises(ValueError, match=message) as err:
+        env.step(actions)
+    assert "expected" in str(err.value)
+
+
+def test_nonfinite_actions_are_applied_as_zero_and_counted():
+    env, reference = make(8), make(8)
+    states = SAFE.repeat(8, 1).to(DEVICE)
+    env.set_state(states)
+    reference.set_state(states)
+    bad = torch.tensor([[math.nan], [math.inf], [-math.inf], [0.0], [0.0], [0.0], [0.0], [0.0]], device=DEVICE)
+    obs, *_, info = env.step(bad)
+    ref_obs, *_ = reference.step(torch.zeros(8, 1, device=DEVICE))
+    assert torch.equal(obs, ref_obs)
+    assert int(info["nonfinite_actions"]) == 3
+
+
+def test_nonfinite_physics_state_is_reset_and_counted():
+    env = make(8)
+    env.set_state(SAFE.repeat(8, 1).to(DEVICE))
+    last_finite = env.get_observations()
+    qd = env.scene.state_0.joint_qd
+    values = qd.numpy()
+    values[3 * env.scene.dofs_per_env + env.scene.pole_dof] = math.nan
+    qd.assign(values)
+    obs, reward, terminated, truncated, info = env.step(torch.zeros(8, 1, device=DEVICE))
+    assert torch.isfinite(obs).all() and torch.isfinite(info["final_obs"]).all()
+    assert int(info["nonfinite_states"]) == 1
+    assert terminated.cpu().tolist() == [False, False, False, True, False, False, False, False]
+    assert int(info["end_reason"][3]) == 4 and float(reward[3]) == -2.0
+    assert torch.equal(info["final_obs"][3], last_finite[3])
+    obs, *_ = env.step(torch.zeros(8, 1, device=DEVICE))
+    assert torch.isfinite(obs).all()
+
+
+def test_set_state_validates_and_masks():
+    env = make(4)
+    env.reset()
+    before = env.get_observations()
+    states = torch.arange(16, dtype=torch.float32, device=DEVICE).reshape(4, 4) / 100
+    mask = torch.tensor([True, False, True, False], device=DEVICE)
+    obs = env.set_state(states, mask)
+    assert torch.equal(obs[mask], states[mask]) and torch.equal(obs[~mask], before[~mask])
+    with pytest.raises(ValueError, match="finite"):
+        env.set_state(torch.full((4, 4), math.nan, device=DEVICE))
+    with pytest.raises(ValueError, match="shape"):
+        env.set_state(torch.zeros(4, 3, device=DEVICE))
+
+
+def write_stage_with_renamed_joint(path):
+    stage = Usd.Stage.Open(str(DEFAULT_STAGE))
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    UsdPhysics.RevoluteJoint(stage.GetPrimAtPath("/cartpole/poleJoint")).GetPrim().SetActive(False)
+    stage.GetRootLayer().Save()
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"num_envs": 0}, "num_envs"),
+        ({"sim": {"physics_dt": 0.0}}, "physics_dt"),
+        ({"sim": {"physics_dt": -0.01}}, "physics_dt"),
+        ({"sim": {"solver": "bullet"}}, "unknown solver 'bullet'"),
+        ({"sim": {"decimation": 3}}, "mass_matrix_interval"),
+        ({"preset": "nonexistent"}, "unknown preset 'nonexistent'"),
+        ({"sim": {"no_such_field": 1}}, "unknown config key 'sim.no_such_field'"),
+        ({"sim": {"stage_path": "/nonexistent/cartpole.usda"}}, "USD stage not found"),
+        ({"device": "tpu"}, "unknown device"),
+    ],
+)
+def test_invalid_config_names_the_problem(kwargs, message):
+    kwargs = {"num_envs": 4, "device": DEVICE, **kwargs}
+    with pytest.raises(cartpole_warp.ConfigError, match=message):
+        cartpole_warp.make_env(**kwargs)
+
+
+def test_malformed_stage_and_missing_joint(tmp_path):
+    garbage = tmp_path / "garbage.usda"
+    garbage.write_text("#usda 1.0\nthis is not usd {")
+    with pytest.raises(cartpole_warp.StageError, match="cannot load USD stage"):
+        cartpole_warp.make_env(num_envs=2, device=DEVICE, sim={"stage_path": str(garbage)})
+    renamed = tmp_path / "no_pole_joint.usda"
+    write_stage_with_renamed_joint(renamed)
+    with pytest.raises(cartpole_warp.StageError, match="no joint named poleJoint"):
+        cartpole_warp.make_env(num_envs=2, device=DEVICE, sim={"stage_path": str(renamed)})

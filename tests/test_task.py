@@ -1,0 +1,74 @@
+"""Tutorial parity: reward, termination and reset ranges, checked against the tutorial's own formulas."""
+
+import math
+
+import numpy as np
+import torch
+
+from conftest import make, random_actions
+
+# From the tutorial (cartpole_task.py): _reset_dist = 3.0, _max_push_effort = 400.0
+RESET_DIST = 3.0
+
+
+def tutorial_reward(obs):
+    """``calculate_metrics`` of the tutorial, verbatim but batched."""
+    cart_pos, cart_vel, pole_angle, pole_vel = obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3]
+    reward = 1.0 - pole_angle * pole_angle - 0.01 * torch.abs(cart_vel) - 0.005 * torch.abs(pole_vel)
+    reward = torch.where(torch.abs(cart_pos) > RESET_DIST, torch.ones_like(reward) * -2.0, reward)
+    reward = torch.where(torch.abs(pole_angle) > np.pi / 2, torch.ones_like(reward) * -2.0, reward)
+    return reward
+
+
+def tutorial_is_done(obs):
+    """``is_done`` of the tutorial, batched."""
+    cart_pos, pole_pos = obs[:, 0], obs[:, 2]
+    resets = torch.where(torch.abs(cart_pos) > RESET_DIST, 1, 0)
+    resets = torch.where(torch.abs(pole_pos) > math.pi / 2, 1, resets)
+    return resets.bool()
+
+
+def sample_states(num_envs, seed):
+    """States spread over and beyond the termination bounds."""
+    gen = torch.Generator().manual_seed(seed)
+    scale = torch.tensor([4.0, 3.0, 2.2, 6.0])
+    return (torch.rand((num_envs, 4), generator=gen) * 2 - 1) * scale
+
+
+def test_reward_and_termination_equal_the_tutorial_formulas():
+    n = 4096
+    for preset in ("default", "tutorial"):
+        env = make(n, preset=preset)
+        env.set_state(sample_states(n, seed=1).to(env.device))
+        _, reward, terminated, truncated, info = env.step(random_actions(n, 1)[0])
+        final = info["final_obs"].cpu()
+        expected_done = tutorial_is_done(final)
+        assert 0.2 < expected_done.float().mean() < 0.9, "the sample must cover both outcomes"
+        torch.testing.assert_close(reward.cpu(), tutorial_reward(final), rtol=1e-5, atol=1e-5)
+        assert torch.equal(terminated.cpu(), expected_done)
+        assert not truncated.any()
+
+
+def test_observation_order_matches_the_physics():
+    """cart_vel is the derivative of cart_pos and pole_vel that of pole_angle (observation order)."""
+    env = make(8, task={"reset_dist_m": 100.0, "max_pole_angle_rad": 100.0})
+    states = torch.tensor([[0.1 * i, 0.5, 0.05 * i, -0.3] for i in range(8)])
+    env.set_state(states.to(env.device))
+    obs1, *_ = env.step(torch.zeros(8, 1, device=env.device))
+    obs2, *_ = env.step(torch.zeros(8, 1, device=env.device))
+    dt = env.env_dt
+    torch.testing.assert_close((obs2[:, 0] - obs1[:, 0]) / dt, (obs1[:, 1] + obs2[:, 1]) / 2, atol=0.02, rtol=0.02)
+    torch.testing.assert_close((obs2[:, 2] - obs1[:, 2]) / dt, (obs1[:, 3] + obs2[:, 3]) / 2, atol=0.05, rtol=0.05)
+
+
+def test_resets_fall_in_the_tutorial_ranges_and_cover_them():
+    env = make(4096, seed=3)
+    samples = torch.cat([env.reset()[0].cpu() for _ in range(4)])
+    # tutorial reset(): cart 1.0*(1-2u), pole 0.125*pi*(1-2u), cart_vel 0.5*(1-2u), pole_vel 0.25*pi*(1-2u)
+    bounds = torch.tensor([1.0, 0.5, 0.125 * math.pi, 0.25 * math.pi])
+    assert (samples.abs() <= bounds).all()
+    assert (samples.max(dim=0).values > 0.99 * bounds).all()
+    assert (samples.min(dim=0).values < -0.99 * bounds).all()
+    for k in range(4):
+        hist = torch.histc(samples[:, k], bins=10, min=-bounds[k].item(), max=bounds[k].item())
+        assert (hist > 0.8 * len(samples) / 10).all(), f"component {k} is not uniform: {hist}"
