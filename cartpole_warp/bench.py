@@ -17,8 +17,9 @@ import torch
 import warp as wp
 
 from . import kernels
-from .config import env_config
-from .env import CartpoleEnv
+from .config import EnvConfig, env_config
+from .env import CartpoleEnv, task_params
+from .scene import build_scene
 
 
 def _rate(run_once, num_envs: int, min_seconds: float, sync) -> float:
@@ -37,23 +38,31 @@ def _rate(run_once, num_envs: int, min_seconds: float, sync) -> float:
             return steps * num_envs / elapsed
 
 
-def measure(num_envs: int, device: str, solver: str, preset: str, min_seconds: float) -> dict:
-    """Physics-only and full-step env-steps/s for one configuration."""
-    cfg = env_config(preset, num_envs=num_envs, device=device, seed=0, sim={"solver": solver})
-    env = CartpoleEnv(cfg)
-    scene, sim = env.scene, cfg.sim
-    sync = (lambda: torch.cuda.synchronize(device)) if device.startswith("cuda") else (lambda: None)
-
-    with wp.ScopedCapture(device=env.device) as capture:
-        wp.launch(kernels.random_forces, dim=num_envs, inputs=[env._rng_state, env.params],
-                  outputs=[scene.control.joint_f], device=env.device)
+def physics_rate(cfg: EnvConfig, min_seconds: float) -> float:
+    """env-steps/s of a captured graph of random cart forces + ``decimation`` solver steps on a fresh scene."""
+    scene, sim = build_scene(cfg.num_envs, cfg.device, cfg.sim), cfg.sim
+    params = task_params(cfg, scene)
+    rng_state = wp.zeros(cfg.num_envs, dtype=wp.uint32, device=cfg.device)
+    wp.launch(kernels.init_rng, dim=cfg.num_envs, inputs=[cfg.seed], outputs=[rng_state], device=cfg.device)
+    with wp.ScopedCapture(device=cfg.device) as capture:
+        wp.launch(kernels.random_forces, dim=cfg.num_envs, inputs=[rng_state, params],
+                  outputs=[scene.control.joint_f], device=cfg.device)
         scene.simulate(sim.physics_dt, sim.decimation)
-    physics = _rate(lambda: wp.capture_launch(capture.graph), num_envs, min_seconds, wp.synchronize_device)
+    return _rate(lambda: wp.capture_launch(capture.graph), cfg.num_envs, min_seconds,
+                 lambda: wp.synchronize_device(cfg.device))
 
-    env.reset()
-    actions = torch.rand((num_envs, 1), device=env.device) * 2 - 1
-    full = _rate(lambda: env.step(actions), num_envs, min_seconds, sync)
-    return {"num_envs": num_envs, "solver": solver, "physics": physics, "full": full}
+
+def full_step_rate(cfg: EnvConfig, min_seconds: float) -> float:
+    """env-steps/s of ``CartpoleEnv.step`` with fixed random actions."""
+    env = CartpoleEnv(cfg)
+    actions = torch.rand((cfg.num_envs, 1), device=env.device) * 2 - 1
+    return _rate(lambda: env.step(actions), cfg.num_envs, min_seconds, lambda: wp.synchronize_device(env.device))
+
+
+def measure(num_envs: int, device: str, solver: str, capture: str, preset: str, min_seconds: float) -> dict:
+    """Physics-only and full-step env-steps/s for one configuration."""
+    cfg = env_config(preset, num_envs=num_envs, device=device, seed=0, sim={"solver": solver, "capture": capture})
+    return {"physics": physics_rate(cfg, min_seconds), "full": full_step_rate(cfg, min_seconds)}
 
 
 def device_name(device: str) -> str:
@@ -68,6 +77,8 @@ def main(argv=None):
     parser.add_argument("--num-envs", type=int, nargs="+", default=None,
                         help="sweep of num_envs (default: 64 1024 4096 on CPU; 4096 16384 65536 on CUDA)")
     parser.add_argument("--solver", nargs="+", default=["featherstone"], choices=["featherstone", "mujoco"])
+    parser.add_argument("--capture", nargs="+", default=["auto"], choices=["auto", "on", "off"],
+                        help="graph capture of the full env step (default: auto)")
     parser.add_argument("--preset", default="default", help="config preset (default: default)")
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timed seconds per figure (default: 2)")
     args = parser.parse_args(argv)
@@ -75,12 +86,13 @@ def main(argv=None):
 
     print(f"device: {args.device} ({device_name(args.device) if args.device == 'cpu' or torch.cuda.is_available() else '?'})")
     print(f"preset: {args.preset}; env-steps/s (one env-step = one cartpole advanced one env step)")
-    print(f"{'solver':<13} {'num_envs':>9} {'physics alone':>15} {'full step':>15} {'full/physics':>13}")
+    print(f"{'solver':<13} {'capture':>7} {'num_envs':>9} {'physics alone':>15} {'full step':>15} {'full/physics':>13}")
     for solver in args.solver:
-        for n in sweep:
-            r = measure(n, args.device, solver, args.preset, args.seconds)
-            print(f"{solver:<13} {n:>9} {r['physics']:>15,.0f} {r['full']:>15,.0f} {r['full'] / r['physics']:>12.1%}",
-                  flush=True)
+        for capture in args.capture:
+            for n in sweep:
+                r = measure(n, args.device, solver, capture, args.preset, args.seconds)
+                print(f"{solver:<13} {capture:>7} {n:>9} {r['physics']:>15,.0f} {r['full']:>15,.0f} "
+                      f"{r['full'] / r['physics']:>12.1%}", flush=True)
 
 
 if __name__ == "__main__":

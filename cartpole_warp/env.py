@@ -26,6 +26,24 @@ def _resolve_device(device: str) -> str:
     return name
 
 
+def task_params(cfg: EnvConfig, scene: Scene) -> kernels.TaskParams:
+    """The kernels' view of the task config and the scene's DOF layout."""
+    t = cfg.task
+    p = kernels.TaskParams()
+    p.dofs_per_env, p.cart_dof, p.pole_dof = scene.dofs_per_env, scene.cart_dof, scene.pole_dof
+    p.max_push_effort_n = t.max_push_effort_n
+    p.reset_dist_m = t.reset_dist_m
+    p.max_pole_angle_rad = t.max_pole_angle_rad
+    p.failure_reward = t.failure_reward
+    p.alive_reward = t.alive_reward
+    p.pole_angle_weight = t.pole_angle_weight
+    p.cart_vel_weight = t.cart_vel_weight
+    p.pole_vel_weight = t.pole_vel_weight
+    p.reset_half_range = wp.vec4(t.reset_cart_pos_m, t.reset_cart_vel_m_s, t.reset_pole_angle_rad, t.reset_pole_vel_rad_s)
+    p.max_episode_length = cfg.max_episode_length
+    return p
+
+
 class CartpoleEnv:
     """Batched cartpole, the Isaac Sim "Custom RL Example using Stable Baselines" task.
 
@@ -60,7 +78,7 @@ class CartpoleEnv:
         self.max_episode_length = cfg.max_episode_length
         self.env_dt = cfg.sim.env_dt
         self.scene: Scene = build_scene(cfg.num_envs, self.device, cfg.sim)
-        self.params = self._task_params()
+        self.params = task_params(cfg, self.scene)
         self._streams = self._stream_bridge()
         self._allocate()
         wp.launch(kernels.init_rng, dim=self.num_envs, inputs=[cfg.seed], outputs=[self._rng_state], device=self.device)
@@ -70,22 +88,6 @@ class CartpoleEnv:
             with self._on_warp_stream(), wp.ScopedCapture(device=self.device) as capture:
                 self._step_kernels()
             self._graph = capture.graph
-
-    def _task_params(self) -> kernels.TaskParams:
-        t, s = self.cfg.task, self.scene
-        p = kernels.TaskParams()
-        p.dofs_per_env, p.cart_dof, p.pole_dof = s.dofs_per_env, s.cart_dof, s.pole_dof
-        p.max_push_effort_n = t.max_push_effort_n
-        p.reset_dist_m = t.reset_dist_m
-        p.max_pole_angle_rad = t.max_pole_angle_rad
-        p.failure_reward = t.failure_reward
-        p.alive_reward = t.alive_reward
-        p.pole_angle_weight = t.pole_angle_weight
-        p.cart_vel_weight = t.cart_vel_weight
-        p.pole_vel_weight = t.pole_vel_weight
-        p.reset_half_range = wp.vec4(t.reset_cart_pos_m, t.reset_cart_vel_m_s, t.reset_pole_angle_rad, t.reset_pole_vel_rad_s)
-        p.max_episode_length = self.max_episode_length
-        return p
 
     def _allocate(self):
         n, dev = self.num_envs, self.device
