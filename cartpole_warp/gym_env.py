@@ -1,0 +1,153 @@
+"""gymnasium adapters: ``CartpoleGymEnv`` (one env, ``gymnasium.Env``) and ``CartpoleVectorEnv`` (batched).
+
+    import gymnasium as gym
+    import cartpole_warp  # registers the ids below
+
+    env = gym.make("cartpole_warp/CartpoleTutorial-v0")  # the Isaac Sim tutorial, one env
+    envs = gym.make_vec("cartpole_warp/Cartpole-v0", num_envs=4096, vectorization_mode="vector_entry_point")
+
+Both are thin translations of ``CartpoleEnv`` (torch in, numpy out); the task logic lives in the env.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .env import CartpoleEnv, make_env
+from .kernels import END_REASONS
+
+ENV_IDS = {"cartpole_warp/Cartpole-v0": "default", "cartpole_warp/CartpoleTutorial-v0": "tutorial"}
+"""Registered gymnasium ids and the preset each builds. Neither sets ``max_episode_steps``: the env truncates
+by itself (``default``: 10 s = 600 steps) or never (``tutorial``, like the Isaac Sim tutorial)."""
+
+
+def observation_space() -> gym.spaces.Box:
+    """One env's observation space: [cart_pos (m), cart_vel (m/s), pole_angle (rad), pole_vel (rad/s)]."""
+    return gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
+
+
+def action_space() -> gym.spaces.Box:
+    """One env's action space: the cart force as a fraction of ``task.max_push_effort_n``."""
+    return gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+
+def actions_tensor(actions, num_envs: int, device: str) -> torch.Tensor:
+    """(num_envs, 1) float32 tensor on ``device`` from an array-like of num_envs actions."""
+    array = np.asarray(actions, dtype=np.float32)
+    if array.size != num_envs:
+        raise ValueError(f"expected {num_envs} action value(s) (shape ({num_envs}, 1)), got shape {array.shape}")
+    return torch.from_numpy(array.reshape(num_envs, 1)).to(device)
+
+
+def register_envs() -> None:
+    """Register ``ENV_IDS`` with gymnasium (idempotent); ``import cartpole_warp`` calls it."""
+    for env_id, preset in ENV_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id,
+                entry_point="cartpole_warp.gym_env:CartpoleGymEnv",
+                vector_entry_point="cartpole_warp.gym_env:CartpoleVectorEnv",
+                kwargs={"preset": preset},
+            )
+
+
+class CartpoleGymEnv(gym.Env):
+    """One cartpole as a ``gymnasium.Env`` (the task is ``CartpoleEnv``'s, with ``num_envs=1``).
+
+    ``step`` returns the observation at which an episode ends, ``reset`` starts the next one. After an ending
+    step, ``reset()`` without a seed continues from the reset state the env already sampled, so the trajectory
+    equals that of ``CartpoleEnv(num_envs=1)`` with the same seed and actions. ``reset(seed=s)`` re-seeds the
+    env's RNG. Stepping past an ending step without ``reset`` continues in the next episode.
+    ``info`` on an ending step: ``episode_return``, ``episode_length`` and ``end_reason`` (a name).
+
+    Arguments: ``preset`` ('tutorial', 'default' or a YAML path), ``device``, ``seed`` (the RNG seed until
+    ``reset(seed=...)``; default the preset's) and ``make_env``'s nested overrides, e.g. ``task={...}``.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, preset: str = "tutorial", device: str = "cpu", seed: int | None = None,
+                 render_mode: str | None = None, **sim_task_overrides):
+        if render_mode is not None:
+            raise ValueError(f"render_mode {render_mode!r} is not supported; this env does not render")
+        self.core: CartpoleEnv = make_env(num_envs=1, device=device, seed=seed, preset=preset, **sim_task_overrides)
+        self.observation_space = observation_space()
+        self.action_space = action_space()
+        self._episode_ended = False
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is None and self._episode_ended:
+            obs = self.core.get_observations()
+        else:
+            obs, _ = self.core.reset(seed=seed)
+        self._episode_ended = False
+        return obs[0].cpu().numpy(), {}
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.core.step(actions_tensor(action, 1, self.core.device))
+        terminated, truncated = bool(terminated[0]), bool(truncated[0])
+        self._episode_ended = terminated or truncated
+        step_info = {}
+        if self._episode_ended:
+            obs = info["final_obs"]
+            step_info = {
+                "episode_return": float(info["episode_return"][0]),
+                "episode_length": int(info["episode_length"][0]),
+                "end_reason": END_REASONS[int(info["end_reason"][0])],
+            }
+        return obs[0].cpu().numpy(), float(reward[0]), terminated, truncated, step_info
+
+
+class CartpoleVectorEnv(VectorEnv):
+    """The batched ``CartpoleEnv`` as a ``gymnasium.vector.VectorEnv`` (numpy in and out, no loop over envs).
+
+    Same-step autoreset (``metadata["autoreset_mode"]``): an env that ends returns the first observation of
+    its next episode. On steps where any env ended, ``info`` holds (gymnasium 1.x convention):
+
+    - ``final_obs`` (N, 4) float32, the observations at which episodes ended, valid where ``_final_obs`` (N,) bool;
+    - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of ``kernels.END_REASONS``),
+      each with its ``_key`` mask}, valid where ``_final_info``.
+
+    Arguments as for ``CartpoleGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to 'default'.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int | None = None, preset: str = "default", device: str = "cpu",
+                 seed: int | None = None, render_mode: str | None = None, **sim_task_overrides):
+        if render_mode is not None:
+            raise ValueError(f"render_mode {render_mode!r} is not supported; this env does not render")
+        self.core: CartpoleEnv = make_env(num_envs=num_envs, device=device, seed=seed, preset=preset,
+                                          **sim_task_overrides)
+        self.num_envs = self.core.num_envs
+        self.single_observation_space = observation_space()
+        self.single_action_space = action_space()
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        obs, _ = self.core.reset(seed=seed)
+        return obs.cpu().numpy(), {}
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, info = self.core.step(
+            actions_tensor(actions, self.num_envs, self.core.device))
+        terminated, truncated = terminated.cpu().numpy(), truncated.cpu().numpy()
+        done = terminated | truncated
+        infos = {}
+        if done.any():
+            final_info = {}
+            for key in ("episode_return", "episode_length", "end_reason"):
+                final_info[key] = info[key].cpu().numpy()
+                final_info[f"_{key}"] = done
+            infos = {"final_obs": info["final_obs"].cpu().numpy(), "_final_obs": done,
+                     "final_info": final_info, "_final_info": done}
+        return obs.cpu().numpy(), reward.cpu().numpy(), terminated, truncated, infos
