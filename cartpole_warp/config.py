@@ -235,3 +235,120 @@ def env_config(preset: str = "default", **overrides) -> EnvConfig:
 def to_dict(cfg) -> dict:
     """A dataclass tree as plain nested dicts (for YAML)."""
     return dataclasses.asdict(cfg)
+
+
+LOGGERS = ("tensorboard", "wandb", "none")
+CONSOLE_STYLES = ("compact", "rsl_rl")
+
+
+@dataclass
+class PolicyConfig:
+    """Actor and critic networks (rsl-rl ``MLPModel``) and the Gaussian action noise."""
+
+    hidden_dims: list[int] = field(default_factory=lambda: [32, 32])
+    """Hidden layer widths of the actor and of the critic MLP."""
+    activation: str = "elu"
+    """Activation function of the hidden layers (an rsl-rl name: elu, relu, tanh, ...)."""
+    init_noise_std: float = 1.0
+    """Initial standard deviation of the Gaussian action noise (actions are in units of max_push_effort_n)."""
+    obs_normalization: bool = False
+    """Normalise observations with running mean/std statistics inside the networks."""
+
+
+@dataclass
+class PPOConfig:
+    """rsl-rl PPO hyper-parameters (Isaac Lab's cartpole settings)."""
+
+    num_learning_epochs: int = 5
+    """Passes over each rollout per iteration."""
+    num_mini_batches: int = 4
+    """Mini-batches per epoch."""
+    clip_param: float = 0.2
+    """PPO ratio clip."""
+    gamma: float = 0.99
+    """Discount factor per env step."""
+    lam: float = 0.95
+    """GAE lambda."""
+    value_loss_coef: float = 1.0
+    """Weight of the value loss."""
+    entropy_coef: float = 0.005
+    """Weight of the entropy bonus."""
+    learning_rate: float = 1.0e-3
+    """Initial Adam learning rate (adapted when schedule is 'adaptive')."""
+    max_grad_norm: float = 1.0
+    """Gradient norm clip."""
+    use_clipped_value_loss: bool = True
+    """Clip the value-function update like the policy update."""
+    schedule: str = "adaptive"
+    """Learning-rate schedule: 'adaptive' (follow desired_kl) or 'fixed'."""
+    desired_kl: float = 0.01
+    """Target KL divergence per update for the adaptive schedule."""
+
+
+@dataclass
+class RunnerConfig:
+    """Training loop, logging and checkpoints."""
+
+    max_iterations: int = 150
+    """PPO iterations to run (on --resume: iterations to add)."""
+    num_steps_per_env: int = 16
+    """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
+    save_interval: int = 50
+    """Write a checkpoint every this many iterations (and always at the end)."""
+    torch_threads: int = 1
+    """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
+    networks are tiny, and more threads fight the env and other processes for cores (10x slower when oversubscribed)."""
+    stop_when_solved: bool = False
+    """End training at the first iteration that meets the 'solved' criterion."""
+    logger: str = "tensorboard"
+    """Metrics writer: 'tensorboard', 'wandb' (needs the wandb package) or 'none' (checkpoints and summary only)."""
+    wandb_project: str = "cartpole_warp"
+    """Weights & Biases project name when logger is 'wandb'."""
+    console: str = "compact"
+    """Console output per iteration: 'compact' (one line) or 'rsl_rl' (rsl-rl's block)."""
+    log_dir: str = "logs"
+    """Root folder of all runs; a run lives in <log_dir>/rsl_rl/<experiment_name>/<timestamp>[_<run_name>]."""
+    experiment_name: str = "cartpole"
+    """Folder under <log_dir>/rsl_rl that groups the runs of one experiment."""
+    run_name: str = ""
+    """Suffix of the run folder name (empty: the timestamp alone)."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything ``train.py`` needs: the env, the networks, PPO and the training loop."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    train: RunnerConfig = field(default_factory=RunnerConfig)
+
+    def validate(self) -> TrainConfig:
+        """Raise ConfigError naming the first invalid value; return self."""
+        self.env.validate()
+        t, p = self.train, self.ppo
+        checks = [
+            (t.max_iterations >= 1, f"train.max_iterations must be >= 1, got {t.max_iterations!r}"),
+            (t.num_steps_per_env >= 1, f"train.num_steps_per_env must be >= 1, got {t.num_steps_per_env!r}"),
+            (t.torch_threads >= 0, f"train.torch_threads must be >= 0, got {t.torch_threads!r}"),
+            (t.save_interval >= 1, f"train.save_interval must be >= 1, got {t.save_interval!r}"),
+            (t.logger in LOGGERS, f"train.logger must be one of {', '.join(LOGGERS)}, got {t.logger!r}"),
+            (t.console in CONSOLE_STYLES, f"train.console must be one of {', '.join(CONSOLE_STYLES)}, got {t.console!r}"),
+            (p.schedule in ("adaptive", "fixed"), f"ppo.schedule must be 'adaptive' or 'fixed', got {p.schedule!r}"),
+            (p.num_mini_batches >= 1 and (self.env.num_envs * t.num_steps_per_env) % p.num_mini_batches == 0,
+             f"ppo.num_mini_batches ({p.num_mini_batches}) must divide num_envs * train.num_steps_per_env "
+             f"({self.env.num_envs * t.num_steps_per_env})"),
+            (all(d >= 1 for d in self.policy.hidden_dims), f"policy.hidden_dims must be positive, got {self.policy.hidden_dims!r}"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ConfigError(message)
+        return self
+
+
+def train_config(preset: str = "default", overrides: dict | None = None) -> TrainConfig:
+    """TrainConfig from the dataclass defaults, a preset's sections, then a nested dict of overrides (not validated)."""
+    cfg = TrainConfig()
+    apply_overrides(cfg, load_preset(preset))
+    apply_overrides(cfg, overrides or {})
+    return cfg

@@ -1,0 +1,208 @@
+"""train.py and play.py as a user runs them: every artefact of a run exists and loads, Ctrl-C saves and --resume
+continues, play.py writes a GIF and a USD recording and fails clearly without a run, a display or a sane checkpoint,
+and a small configuration trains to "solved"."""
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+import torch
+import yaml
+from onnx.reference import ReferenceEvaluator
+from PIL import Image
+
+REPO = Path(__file__).resolve().parent.parent
+SMALL = ["--num-envs", "64", "--logger", "tensorboard", "--set", "train.save_interval=1"]
+
+
+def run_script(script, *args, env=None, timeout=300):
+    result = subprocess.run([sys.executable, str(REPO / script), *map(str, args)], cwd=REPO, capture_output=True,
+                            text=True, timeout=timeout, env=env)
+    return result
+
+
+def only_run(log_dir):
+    runs = [p for p in (Path(log_dir) / "rsl_rl" / "cartpole").iterdir() if p.is_dir()]
+    assert len(runs) == 1, runs
+    return runs[0]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A 2-iteration run of train.py with 64 envs."""
+    log_dir = tmp_path_factory.mktemp("logs")
+    result = run_script("train.py", *SMALL, "--max-iterations", "2", "--run-name", "ci", "--log-dir", log_dir)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return log_dir, only_run(log_dir), result.stdout
+
+
+def test_train_writes_every_artefact(trained):
+    log_dir, run, stdout = trained
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d_ci", run.name)
+    assert re.search(r"it 2/2 \| .* steps/s \| ETA", stdout), stdout
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["env"]["num_envs"] == 64 and saved["train"]["max_iterations"] == 2
+    assert list(run.glob("events.out.tfevents.*"))
+    for name in ("model_0.pt", "model_1.pt"):
+        checkpoint = torch.load(run / name, weights_only=False)
+        assert "actor_state_dict" in checkpoint and checkpoint["infos"]["history"]
+    assert torch.load(run / "model_1.pt", weights_only=False)["iter"] == 1
+    assert not [p.name for p in run.rglob(".*")], "a temporary file survived"
+
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 64 * 16 and summary["status"] == "completed"
+    assert summary["env_steps_per_s"] > 0 and summary["device"] == "cpu" and summary["versions"]["rsl-rl-lib"]
+    assert isinstance(summary["solved"], bool) and summary["checkpoint"] == "model_1.pt"
+    assert summary["final"]["mean_episode_length"] > 0
+
+    image = Image.open(run / "learning_curve.png")
+    image.load()
+    assert image.size[0] > 100
+
+    onnx_path, jit_path = run / "exported" / "policy.onnx", run / "exported" / "policy.pt"
+    onnx.checker.check_model(str(onnx_path))
+    obs = np.array([[0.1, -0.2, 0.05, 0.3], [0.0, 0.0, 0.0, 0.0]], dtype=np.float32)
+    (actions,) = ReferenceEvaluator(str(onnx_path)).run(None, {"obs": obs})
+    scripted = torch.jit.load(str(jit_path))
+    np.testing.assert_allclose(actions, scripted(torch.from_numpy(obs)).detach().numpy(), rtol=1e-4, atol=1e-5)
+    assert actions.shape == (2, 1)
+
+
+def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
+    log_dir, run, _ = trained
+    result = run_script("play.py", "--headless", "--log-dir", log_dir, "--num-envs", "8", "--steps", "40")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert re.search(r"8 episodes .* mean return -?\d+\.\d+, mean length \d+\.\d steps .* reached .*: \d+\.\d%",
+                     result.stdout), result.stdout
+    assert "model_1.pt" in result.stdout
+
+    gif = Image.open(run / "play" / "cartpole.gif")
+    assert gif.format == "GIF" and gif.n_frames == 21
+    gif.seek(10)
+    gif.convert("RGB").load()
+
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(run / "play" / "cartpole.usda"))
+    assert stage.GetEndTimeCode() == 40 and UsdGeom.GetStageUpAxis(stage) == "Z"
+    pole = UsdGeom.Xformable(stage.GetPrimAtPath("/cartpole/pole"))
+    orient = [op for op in pole.GetOrderedXformOps() if op.GetOpType() == UsdGeom.XformOp.TypeOrient][0]
+    assert len(orient.GetTimeSamples()) == 41
+    assert orient.Get(0) != orient.Get(40), "the pole does not move"
+    assert stage.GetPrimAtPath("/cartpole/cart/geom").IsA(UsdGeom.Cube)
+    result_json = json.loads((run / "play" / "result.json").read_text())
+    assert result_json["episodes"] == 8 and 0.0 <= result_json["time_limit_fraction"] <= 1.0
+
+
+def test_play_export_writes_onnx_and_torchscript(trained, tmp_path):
+    log_dir, run, _ = trained
+    copy = shutil.copytree(run, tmp_path / "run")
+    shutil.rmtree(copy / "exported")
+    result = run_script("play.py", "--run", copy, "--export", "--headless", "--num-envs", "2", "--steps", "2")
+    assert result.returncode == 0, result.stderr
+    onnx.checker.check_model(str(copy / "exported" / "policy.onnx"))
+    assert torch.jit.load(str(copy / "exported" / "policy.pt"))(torch.zeros(1, 4)).shape == (1, 1)
+
+
+def test_play_without_runs_says_what_to_do(tmp_path):
+    result = run_script("play.py", "--headless", "--log-dir", tmp_path)
+    assert result.returncode == 2
+    assert "no checkpoint under" in result.stderr and "run train.py first or pass --checkpoint" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("content", [b"not a checkpoint", None])
+def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, content):
+    _, run, _ = trained
+    copy = shutil.copytree(run, tmp_path / "run")
+    bad = copy / "model_7.pt"
+    if content is None:
+        checkpoint = torch.load(run / "model_1.pt", weights_only=False)
+        checkpoint["actor_state_dict"] = {k: torch.zeros(3, 3) for k in checkpoint["actor_state_dict"]}
+        torch.save(checkpoint, bad)
+    else:
+        bad.write_bytes(content)
+    result = run_script("play.py", "--headless", "--run", copy, "--num-envs", "2", "--steps", "2")
+    assert result.returncode == 2 and str(bad) in result.stderr and "Traceback" not in result.stderr
+
+
+def test_play_without_a_display_suggests_headless(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    result = run_script("play.py", "--agent", "zero", "--log-dir", tmp_path, "--num-envs", "2", env=env)
+    assert result.returncode == 1 and "--headless" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_play_zero_agent_needs_no_checkpoint(tmp_path):
+    result = run_script("play.py", "--agent", "zero", "--headless", "--log-dir", tmp_path, "--num-envs", "4",
+                        "--steps", "300")
+    assert result.returncode == 0, result.stderr
+    record = json.loads((tmp_path / "play" / "zero" / "result.json").read_text())
+    assert record["episodes"] == 4 and record["time_limit_fraction"] == 0.0, "an unpushed pole must fall"
+
+
+def test_help_documents_flags_and_config_fields():
+    result = run_script("train.py", "--help")
+    for flag in ("--num-envs", "--device", "--max-iterations", "--seed", "--config", "--logger", "--run-name",
+                 "--log-dir", "--resume", "--checkpoint", "--set", "ppo.entropy_coef", "env.task.episode_length_s"):
+        assert flag in result.stdout, flag
+
+
+def test_bad_flag_values_are_clear_errors(tmp_path):
+    result = run_script("train.py", "--log-dir", tmp_path, "--set", "ppo.entropy=1")
+    assert result.returncode == 2 and "unknown config key 'ppo.entropy'" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "rsl_rl").exists()
+
+
+@pytest.mark.slow
+def test_sigint_saves_and_resume_continues(tmp_path):
+    cmd = [sys.executable, str(REPO / "train.py"), *SMALL, "--max-iterations", "10000", "--log-dir", str(tmp_path),
+           "--set", "train.save_interval=1000"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines, deadline = [], time.monotonic() + 240
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("it ") and line.split()[1].startswith("3/"):
+            proc.send_signal(signal.SIGINT)
+            break
+        assert time.monotonic() < deadline, "".join(lines)
+    out = "".join(lines) + proc.communicate(timeout=120)[0]
+    assert proc.returncode == 130, out
+    assert "Traceback" not in out
+    run = only_run(tmp_path)
+    summary = json.loads((run / "summary.json").read_text())
+    done = summary["iterations"]
+    assert summary["status"] == "interrupted" and done >= 3
+    checkpoint = torch.load(run / f"model_{done - 1}.pt", weights_only=False)
+    assert checkpoint["iter"] == done - 1 and len(checkpoint["infos"]["history"]) == done
+
+    result = run_script("train.py", "--resume", "--log-dir", tmp_path, "--max-iterations", "2")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"resuming from model_{done - 1}.pt" in result.stdout
+    assert re.search(rf"it {done + 2}/{done + 2} \|", result.stdout), result.stdout
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["iterations"] == done + 2 and summary["env_steps"] == (done + 2) * 64 * 16
+    assert torch.load(run / f"model_{done + 1}.pt", weights_only=False)["iter"] == done + 1
+
+
+@pytest.mark.slow
+def test_small_configuration_trains_to_solved_and_plays_well(tmp_path):
+    result = run_script("train.py", "--num-envs", "512", "--set", "env.task.episode_length_s=5", "--max-iterations", "150",
+                        "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path, timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = only_run(tmp_path)
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["solved"] and summary["status"] == "solved", summary
+    assert summary["final"]["mean_episode_length"] >= 0.95 * 300 and summary["final"]["mean_reward_per_step"] >= 0.9
+    assert not list(run.glob("events.out.tfevents.*")), "--logger none writes no metrics"
+    result = run_script("play.py", "--headless", "--run", run, "--num-envs", "64")
+    assert result.returncode == 0, result.stderr
+    assert json.loads((run / "play" / "result.json").read_text())["time_limit_fraction"] >= 0.9
