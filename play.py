@@ -3,6 +3,7 @@
     python play.py --headless                    # newest run's latest checkpoint -> <run>/play/
     python play.py --headless --run DIR          # or --checkpoint FILE
     python play.py --agent zero --headless       # no checkpoint needed (also: random)
+    python play.py --algo sb3 --headless         # the newest SB3 run (train.py --algo sb3)
     python play.py                               # Newton's interactive viewer (needs a display)
 
 The env is rebuilt from the run's saved config.yaml; the policy acts deterministically (the Gaussian's mean).
@@ -16,9 +17,9 @@ import sys
 from pathlib import Path
 
 from cartpole_warp.cli import add_config_arguments, apply_sets, clean_errors
-from cartpole_warp.config import ConfigError, train_config
-from cartpole_warp.runs import (EXPORT_DIR, PLAY_DIR, CONFIG_FILE, RunError, latest_checkpoint, latest_run, load_config,
-                                write_text)
+from cartpole_warp.config import ALGOS, ConfigError, train_config
+from cartpole_warp.runs import (CONFIG_FILE, EXPORT_DIR, PLAY_DIR, SB3_MODEL_FILE, RunError, latest_checkpoint, latest_run,
+                                load_config, write_text)
 
 DEFAULT_PLAY_ENVS = 256
 NO_LIMIT_STEPS = 1000
@@ -28,6 +29,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--agent", choices=("trained", "zero", "random"), default="trained",
                         help="trained: a checkpoint's policy; zero: no push; random: uniform in [-1, 1]")
+    parser.add_argument("--algo", choices=ALGOS, default="rsl_rl",
+                        help="where to look for the newest run: logs/<algo>/cartpole (default rsl_rl); a --run or "
+                             "--checkpoint is played whatever trained it")
     parser.add_argument("--run", type=Path, metavar="DIR", help="run folder (default: the newest run under --log-dir)")
     parser.add_argument("--checkpoint", type=Path, metavar="FILE", help="checkpoint file (default: the run's latest)")
     parser.add_argument("--log-dir", default="logs", help="root of all runs (default logs)")
@@ -59,8 +63,10 @@ def resolve(args: argparse.Namespace):
             if not checkpoint.is_file():
                 raise RunError(f"checkpoint {checkpoint} not found")
         else:
-            checkpoint = latest_checkpoint(args.run or latest_run(args.log_dir, "rsl_rl", "cartpole"))
+            checkpoint = latest_checkpoint(args.run or latest_run(args.log_dir, args.algo, "cartpole"))
         run_dir = checkpoint.parent
+        if args.export and checkpoint.name == SB3_MODEL_FILE:
+            raise ConfigError("--export writes rsl-rl policies; an SB3 model is already a self-contained .zip")
         if (run_dir / CONFIG_FILE).is_file():
             if args.config:
                 raise ConfigError(f"--config conflicts with the run's saved {run_dir / CONFIG_FILE}; use --set")
@@ -101,7 +107,10 @@ def main(argv=None) -> int:
         if cfg.train.torch_threads:
             torch.set_num_threads(cfg.train.torch_threads)
         env = CartpoleEnv(cfg.env)
-        if checkpoint is not None:
+        if checkpoint is not None and checkpoint.name == SB3_MODEL_FILE:
+            policy = load_sb3(checkpoint, env.device)
+            print(f"policy: {checkpoint}")
+        elif checkpoint is not None:
             runner = load_policy(cfg, checkpoint, env)
             policy = runner.policy()
             print(f"policy: {checkpoint}")
@@ -135,6 +144,18 @@ def main(argv=None) -> int:
         result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
         print(f"wrote {gif}, {usd} (open with usdview) and {result_file}")
     return 0
+
+
+def load_sb3(path: Path, device: str):
+    """The SB3 model at ``path`` as a deterministic policy; clear errors for a missing extra or a bad file."""
+    try:
+        from cartpole_warp.sb3_agent import load_sb3_policy
+    except ModuleNotFoundError as err:
+        raise ConfigError(f"playing {path} needs stable-baselines3 ({err}): pip install -e '.[sb3]'") from None
+    try:
+        return load_sb3_policy(path, device)
+    except Exception as err:  # SB3 raises zipfile, pickle and key errors for damaged files
+        raise RunError(f"cannot load SB3 model {path}: {type(err).__name__}: {err}") from None
 
 
 if __name__ == "__main__":

@@ -237,6 +237,7 @@ def to_dict(cfg) -> dict:
     return dataclasses.asdict(cfg)
 
 
+ALGOS = ("rsl_rl", "sb3")
 LOGGERS = ("tensorboard", "wandb", "none")
 CONSOLE_STYLES = ("compact", "rsl_rl")
 
@@ -307,27 +308,56 @@ class RunnerConfig:
     console: str = "compact"
     """Console output per iteration: 'compact' (one line) or 'rsl_rl' (rsl-rl's block)."""
     log_dir: str = "logs"
-    """Root folder of all runs; a run lives in <log_dir>/rsl_rl/<experiment_name>/<timestamp>[_<run_name>]."""
+    """Root folder of all runs; a run lives in <log_dir>/<algo>/<experiment_name>/<timestamp>[_<run_name>]."""
     experiment_name: str = "cartpole"
-    """Folder under <log_dir>/rsl_rl that groups the runs of one experiment."""
+    """Folder under <log_dir>/<algo> that groups the runs of one experiment."""
     run_name: str = ""
     """Suffix of the run folder name (empty: the timestamp alone)."""
+
+
+@dataclass
+class Sb3PpoConfig:
+    """Stable-Baselines3 ``PPO("MlpPolicy", ...)`` (``--algo sb3``); the defaults are the Isaac Sim tutorial's."""
+
+    total_timesteps: int = 100_000
+    """Env steps to train for (summed over all envs): the tutorial's ``model.learn(total_timesteps=100000)``."""
+    n_steps: int = 1000
+    """Env steps per env in each rollout."""
+    batch_size: int = 1000
+    """Minibatch size (samples)."""
+    n_epochs: int = 20
+    """Passes over each rollout."""
+    learning_rate: float = 0.001
+    """Adam learning rate."""
+    gamma: float = 0.99
+    """Discount factor."""
+    ent_coef: float = 0.0
+    """Entropy bonus weight."""
+    vf_coef: float = 0.5
+    """Value loss weight."""
+    max_grad_norm: float = 1.0
+    """Gradient clipping norm."""
 
 
 @dataclass
 class TrainConfig:
     """Everything ``train.py`` needs: the env, the networks, PPO and the training loop."""
 
+    algo: str = "rsl_rl"
+    """Trainer: 'rsl_rl' (rsl-rl PPO on the batched env) or 'sb3' (the tutorial's Stable-Baselines3 PPO)."""
     env: EnvConfig = field(default_factory=EnvConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     train: RunnerConfig = field(default_factory=RunnerConfig)
+    sb3: Sb3PpoConfig = field(default_factory=Sb3PpoConfig)
 
     def validate(self) -> TrainConfig:
         """Raise ConfigError naming the first invalid value; return self."""
         self.env.validate()
         t, p = self.train, self.ppo
         checks = [
+            (self.algo in ALGOS, f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}"),
+            (self.sb3.total_timesteps >= 1, f"sb3.total_timesteps must be >= 1, got {self.sb3.total_timesteps!r}"),
             (t.max_iterations >= 1, f"train.max_iterations must be >= 1, got {t.max_iterations!r}"),
             (t.num_steps_per_env >= 1, f"train.num_steps_per_env must be >= 1, got {t.num_steps_per_env!r}"),
             (t.torch_threads >= 0, f"train.torch_threads must be >= 0, got {t.torch_threads!r}"),

@@ -26,6 +26,8 @@ SUMMARY_FILE = "summary.json"
 CURVE_FILE = "learning_curve.png"
 EXPORT_DIR = "exported"
 PLAY_DIR = "play"
+SB3_MODEL_FILE = "ppo_cartpole.zip"
+"""The trained model of an SB3 run (the tutorial's ``model.save("ppo_cartpole")``)."""
 _CHECKPOINT = re.compile(r"^model_(\d+)\.pt$")
 
 
@@ -52,16 +54,17 @@ def create_run_dir(log_dir: str | Path, algo: str, experiment: str, run_name: st
 
 
 def list_checkpoints(run_dir: Path) -> list[Path]:
-    """The run's ``model_<iteration>.pt`` files, oldest iteration first."""
+    """The run's ``model_<iteration>.pt`` files (rsl-rl), oldest iteration first, or its SB3 model."""
     found = [(int(m.group(1)), p) for p in Path(run_dir).glob("model_*.pt") if (m := _CHECKPOINT.match(p.name))]
-    return [p for _, p in sorted(found)]
+    sb3_model = Path(run_dir) / SB3_MODEL_FILE
+    return [p for _, p in sorted(found)] + ([sb3_model] if sb3_model.is_file() else [])
 
 
 def latest_checkpoint(run_dir: Path) -> Path:
     """The checkpoint with the highest iteration in ``run_dir``."""
     checkpoints = list_checkpoints(run_dir)
     if not checkpoints:
-        raise RunError(f"no checkpoint (model_<iteration>.pt) in {run_dir}")
+        raise RunError(f"no checkpoint (model_<iteration>.pt or {SB3_MODEL_FILE}) in {run_dir}")
     return checkpoints[-1]
 
 
