@@ -10,6 +10,7 @@ One env-step is one cartpole advanced by one env step (``decimation`` physics st
 from __future__ import annotations
 
 import argparse
+import itertools
 import platform
 import time
 
@@ -18,8 +19,8 @@ import warp as wp
 
 from . import kernels
 from .config import EnvConfig, env_config
-from .env import CartpoleEnv, task_params
-from .scene import build_scene
+from .env import CartpoleEnv, GraphReplay, task_params
+from .scene import build_scene, shard_bounds
 
 
 def _rate(run_once, num_envs: int, min_seconds: float, sync) -> float:
@@ -39,29 +40,40 @@ def _rate(run_once, num_envs: int, min_seconds: float, sync) -> float:
 
 
 def physics_rate(cfg: EnvConfig, min_seconds: float) -> float:
-    """env-steps/s of a captured graph of random cart forces + ``decimation`` solver steps on a fresh scene."""
-    scene, sim = build_scene(cfg.num_envs, cfg.device, cfg.sim), cfg.sim
-    params = task_params(cfg, scene)
-    rng_state = wp.zeros(cfg.num_envs, dtype=wp.uint32, device=cfg.device)
-    wp.launch(kernels.init_rng, dim=cfg.num_envs, inputs=[cfg.seed], outputs=[rng_state], device=cfg.device)
-    with wp.ScopedCapture(device=cfg.device) as capture:
-        wp.launch(kernels.random_forces, dim=cfg.num_envs, inputs=[rng_state, params],
-                  outputs=[scene.control.joint_f], device=cfg.device)
-        scene.simulate(sim.physics_dt, sim.decimation)
-    return _rate(lambda: wp.capture_launch(capture.graph), cfg.num_envs, min_seconds,
-                 lambda: wp.synchronize_device(cfg.device))
+    """env-steps/s of captured graphs of random cart forces + ``decimation`` solver steps on fresh scenes,
+    sharded (and threaded on the CPU) like the env."""
+    graphs = []
+    for start, stop in shard_bounds(cfg.num_envs, cfg.device, cfg.sim.cpu_threads):
+        scene, num_envs = build_scene(stop - start, cfg.device, cfg.sim), stop - start
+        rng_state = wp.zeros(num_envs, dtype=wp.uint32, device=cfg.device)
+        wp.launch(kernels.init_rng, dim=num_envs, inputs=[cfg.seed, start], outputs=[rng_state], device=cfg.device)
+        with wp.ScopedCapture(device=cfg.device) as capture:
+            wp.launch(kernels.random_forces, dim=num_envs, inputs=[rng_state, task_params(cfg, scene)],
+                      outputs=[scene.control.joint_f], device=cfg.device)
+            scene.simulate(cfg.sim.physics_dt, cfg.sim.decimation)
+        graphs.append(capture.graph)
+    replay = GraphReplay(graphs)
+    try:
+        return _rate(replay, cfg.num_envs, min_seconds, lambda: wp.synchronize_device(cfg.device))
+    finally:
+        replay.close()
 
 
 def full_step_rate(cfg: EnvConfig, min_seconds: float) -> float:
     """env-steps/s of ``CartpoleEnv.step`` with fixed random actions."""
     env = CartpoleEnv(cfg)
     actions = torch.rand((cfg.num_envs, 1), device=env.device) * 2 - 1
-    return _rate(lambda: env.step(actions), cfg.num_envs, min_seconds, lambda: wp.synchronize_device(env.device))
+    try:
+        return _rate(lambda: env.step(actions), cfg.num_envs, min_seconds, lambda: wp.synchronize_device(env.device))
+    finally:
+        env.close()
 
 
-def measure(num_envs: int, device: str, solver: str, capture: str, preset: str, min_seconds: float) -> dict:
+def measure(num_envs: int, device: str, solver: str, capture: str, cpu_threads: int, preset: str,
+            min_seconds: float) -> dict:
     """Physics-only and full-step env-steps/s for one configuration."""
-    cfg = env_config(preset, num_envs=num_envs, device=device, seed=0, sim={"solver": solver, "capture": capture})
+    cfg = env_config(preset, num_envs=num_envs, device=device, seed=0,
+                     sim={"solver": solver, "capture": capture, "cpu_threads": cpu_threads})
     return {"physics": physics_rate(cfg, min_seconds), "full": full_step_rate(cfg, min_seconds)}
 
 
@@ -79,6 +91,8 @@ def main(argv=None):
     parser.add_argument("--solver", nargs="+", default=["featherstone"], choices=["featherstone", "mujoco"])
     parser.add_argument("--capture", nargs="+", default=["auto"], choices=["auto", "on", "off"],
                         help="graph capture of the full env step (default: auto)")
+    parser.add_argument("--cpu-threads", type=int, nargs="+", default=[0],
+                        help="sim.cpu_threads values to sweep on the CPU (default: 0 = one per core)")
     parser.add_argument("--preset", default="default", help="config preset (default: default)")
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timed seconds per figure (default: 2)")
     args = parser.parse_args(argv)
@@ -86,13 +100,13 @@ def main(argv=None):
 
     print(f"device: {args.device} ({device_name(args.device) if args.device == 'cpu' or torch.cuda.is_available() else '?'})")
     print(f"preset: {args.preset}; env-steps/s (one env-step = one cartpole advanced one env step)")
-    print(f"{'solver':<13} {'capture':>7} {'num_envs':>9} {'physics alone':>15} {'full step':>15} {'full/physics':>13}")
-    for solver in args.solver:
-        for capture in args.capture:
-            for n in sweep:
-                r = measure(n, args.device, solver, capture, args.preset, args.seconds)
-                print(f"{solver:<13} {capture:>7} {n:>9} {r['physics']:>15,.0f} {r['full']:>15,.0f} "
-                      f"{r['full'] / r['physics']:>12.1%}", flush=True)
+    print(f"{'solver':<13} {'capture':>7} {'shards':>6} {'num_envs':>9} {'physics alone':>15} {'full step':>15} "
+          f"{'full/physics':>13}")
+    for solver, capture, threads, n in itertools.product(args.solver, args.capture, args.cpu_threads, sweep):
+        r = measure(n, args.device, solver, capture, threads, args.preset, args.seconds)
+        shards = len(shard_bounds(n, args.device, threads))
+        print(f"{solver:<13} {capture:>7} {shards:>6} {n:>9} {r['physics']:>15,.0f} {r['full']:>15,.0f} "
+              f"{r['full'] / r['physics']:>12.1%}", flush=True)
 
 
 if __name__ == "__main__":

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
 import torch
 import warp as wp
 
 from . import kernels
 from .config import ConfigError, EnvConfig
-from .scene import Scene, build_scene
+from .scene import Scene, build_scene, shard_bounds
 
 
 def _resolve_device(device: str) -> str:
@@ -44,6 +47,50 @@ def task_params(cfg: EnvConfig, scene: Scene) -> kernels.TaskParams:
     return p
 
 
+@dataclass
+class Shard:
+    """The envs [start, stop) simulated by one scene; on the CPU each shard steps in its own thread."""
+
+    index: int
+    start: int
+    stop: int
+    scene: Scene
+    graph: wp.Graph | None = None
+
+    @property
+    def num_envs(self) -> int:
+        return self.stop - self.start
+
+    def rows(self, array: wp.array) -> wp.array:
+        """The shard's rows of a per-env buffer (a view)."""
+        return array[self.start:self.stop]
+
+    def slot(self, counters: wp.array) -> wp.array:
+        """The shard's own element of a per-shard counter (a view)."""
+        return counters[self.index:self.index + 1]
+
+
+class GraphReplay:
+    """Replays one captured graph per shard: in the calling thread for one, concurrently for several.
+
+    Warp replays a CPU graph in one native call that releases the GIL, so shards use separate cores."""
+
+    def __init__(self, graphs: list):
+        self.graphs = graphs
+        self._pool = ThreadPoolExecutor(len(graphs), thread_name_prefix="cartpole-shard") if len(graphs) > 1 else None
+
+    def __call__(self):
+        if self._pool is None:
+            wp.capture_launch(self.graphs[0])
+        else:
+            for _ in self._pool.map(wp.capture_launch, self.graphs):
+                pass
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown()
+
+
 class CartpoleEnv:
     """Batched cartpole, the Isaac Sim "Custom RL Example using Stable Baselines" task.
 
@@ -66,6 +113,9 @@ class CartpoleEnv:
     terminated | truncated; ``nonfinite_actions`` and ``nonfinite_states`` (scalars, totals since construction):
     non-finite actions are applied as 0, and a non-finite physics state ends its episode as a failure whose
     ``final_obs`` is the last finite observation.
+
+    On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
+    (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
     """
 
     num_actions = 1
@@ -77,17 +127,25 @@ class CartpoleEnv:
         self.num_envs = cfg.num_envs
         self.max_episode_length = cfg.max_episode_length
         self.env_dt = cfg.sim.env_dt
-        self.scene: Scene = build_scene(cfg.num_envs, self.device, cfg.sim)
+        self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim))
+                       for i, (start, stop) in enumerate(shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads))]
         self.params = task_params(cfg, self.scene)
         self._streams = self._stream_bridge()
         self._allocate()
-        wp.launch(kernels.init_rng, dim=self.num_envs, inputs=[cfg.seed], outputs=[self._rng_state], device=self.device)
+        self._seed(cfg.seed)
         self._launch_reset(self._all_envs)
-        self._graph = None
+        self._replay = None
         if cfg.sim.capture != "off":
-            with self._on_warp_stream(), wp.ScopedCapture(device=self.device) as capture:
-                self._step_kernels()
-            self._graph = capture.graph
+            for shard in self.shards:
+                with self._on_warp_stream(), wp.ScopedCapture(device=self.device) as capture:
+                    self._step_kernels(shard)
+                shard.graph = capture.graph
+            self._replay = GraphReplay([shard.graph for shard in self.shards])
+
+    @property
+    def scene(self) -> Scene:
+        """The Newton scene holding env 0 (all envs unless the CPU shards them)."""
+        return self.shards[0].scene
 
     def _allocate(self):
         n, dev = self.num_envs, self.device
@@ -107,8 +165,8 @@ class CartpoleEnv:
         self._ended_return = buf(float)
         self._ended_length = buf(wp.int32)
         self._end_reason = buf(wp.int32)
-        self._nonfinite_actions = buf(wp.int32, 1)
-        self._nonfinite_states = buf(wp.int32, 1)
+        self._nonfinite_actions = buf(wp.int32, len(self.shards))
+        self._nonfinite_states = buf(wp.int32, len(self.shards))
         self._states_in = buf(wp.vec4)
         self._mask_in = buf(wp.bool)
         self._all_envs = wp.full(n, True, dtype=wp.bool, device=dev)
@@ -128,8 +186,8 @@ class CartpoleEnv:
             "end_reason": wp.to_torch(self._end_reason),
         }
         self._counter_views = {
-            "nonfinite_actions": wp.to_torch(self._nonfinite_actions)[0],
-            "nonfinite_states": wp.to_torch(self._nonfinite_states)[0],
+            "nonfinite_actions": wp.to_torch(self._nonfinite_actions),
+            "nonfinite_states": wp.to_torch(self._nonfinite_states),
         }
 
     @property
@@ -165,25 +223,32 @@ class CartpoleEnv:
     def _on_warp_stream(self):
         return self._StreamOrder(self._streams)
 
-    def _step_kernels(self):
-        s, p = self.scene, self.params
-        wp.launch(kernels.apply_actions, dim=self.num_envs, inputs=[self._actions, p],
-                  outputs=[s.control.joint_f, self._nonfinite_actions], device=self.device)
+    def _step_kernels(self, shard: Shard):
+        s, p, rows = shard.scene, self.params, shard.rows
+        wp.launch(kernels.apply_actions, dim=shard.num_envs, inputs=[rows(self._actions), p],
+                  outputs=[s.control.joint_f, shard.slot(self._nonfinite_actions)], device=self.device)
         s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
         wp.launch(
-            kernels.finish_step, dim=self.num_envs,
+            kernels.finish_step, dim=shard.num_envs,
             inputs=[p],
-            outputs=[self._rng_state, s.state_0.joint_q, s.state_0.joint_qd, self._obs, self._episode_length,
-                     self._episode_return, self._reward, self._terminated, self._truncated, self._final_obs,
-                     self._ended_return, self._ended_length, self._end_reason, self._nonfinite_states],
+            outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
+                     rows(self._episode_length), rows(self._episode_return), rows(self._reward),
+                     rows(self._terminated), rows(self._truncated), rows(self._final_obs), rows(self._ended_return),
+                     rows(self._ended_length), rows(self._end_reason), shard.slot(self._nonfinite_states)],
             device=self.device,
         )
 
+    def _seed(self, seed: int):
+        for shard in self.shards:
+            wp.launch(kernels.init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
+                      outputs=[shard.rows(self._rng_state)], device=self.device)
+
     def _launch_reset(self, mask: wp.array):
-        s = self.scene
-        wp.launch(kernels.reset_masked, dim=self.num_envs, inputs=[mask, self.params],
-                  outputs=[self._rng_state, s.state_0.joint_q, s.state_0.joint_qd, self._obs, self._episode_length,
-                           self._episode_return], device=self.device)
+        for shard in self.shards:
+            s, rows = shard.scene, shard.rows
+            wp.launch(kernels.reset_masked, dim=shard.num_envs, inputs=[rows(mask), self.params],
+                      outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
+                               rows(self._episode_length), rows(self._episode_return)], device=self.device)
 
     def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
         expected = f"a torch.Tensor of shape {' or '.join(str(tuple(s)) for s in shapes)}, dtype {dtype}, on {self.device}"
@@ -199,14 +264,14 @@ class CartpoleEnv:
 
     def _outputs(self):
         info = {k: v.clone() for k, v in self._info_views.items()}
-        info.update({k: v.clone() for k, v in self._counter_views.items()})
+        info.update({k: v.sum() for k, v in self._counter_views.items()})
         return info
 
     def reset(self, seed: int | None = None) -> tuple[torch.Tensor, dict]:
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
-        if seed is not None:
-            wp.launch(kernels.init_rng, dim=self.num_envs, inputs=[int(seed)], outputs=[self._rng_state], device=self.device)
         with self._on_warp_stream():
+            if seed is not None:
+                self._seed(seed)
             self._launch_reset(self._all_envs)
         return self.obs_buf.clone(), self._outputs()
 
@@ -216,10 +281,11 @@ class CartpoleEnv:
         actions = self._check("actions", actions, ((n, 1), (n,)), torch.float32)
         self.actions_buf.copy_(actions.reshape(n))
         with self._on_warp_stream():
-            if self._graph is not None:
-                wp.capture_launch(self._graph)
+            if self._replay is not None:
+                self._replay()
             else:
-                self._step_kernels()
+                for shard in self.shards:
+                    self._step_kernels(shard)
         return (self.obs_buf.clone(), self.reward_buf.clone(), self.terminated_buf.clone(),
                 self.truncated_buf.clone(), self._outputs())
 
@@ -236,12 +302,19 @@ class CartpoleEnv:
             self._mask_in_t.fill_(True)
         else:
             self._mask_in_t.copy_(mask)
-        s = self.scene
         with self._on_warp_stream():
-            wp.launch(kernels.set_states_masked, dim=n, inputs=[self._states_in, self._mask_in, self.params],
-                      outputs=[s.state_0.joint_q, s.state_0.joint_qd, self._obs, self._episode_length,
-                               self._episode_return], device=self.device)
+            for shard in self.shards:
+                s, rows = shard.scene, shard.rows
+                wp.launch(kernels.set_states_masked, dim=shard.num_envs,
+                          inputs=[rows(self._states_in), rows(self._mask_in), self.params],
+                          outputs=[s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs), rows(self._episode_length),
+                                   rows(self._episode_return)], device=self.device)
         return self.obs_buf.clone()
+
+    def close(self):
+        """Stop the shard threads (the env cannot step afterwards)."""
+        if self._replay is not None:
+            self._replay.close()
 
     def get_observations(self) -> torch.Tensor:
         """The current observations (N, 4), a fresh tensor."""

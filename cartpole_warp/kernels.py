@@ -102,9 +102,10 @@ def begin_episode(
 
 
 @wp.kernel
-def init_rng(seed: int, rng_state: wp.array(dtype=wp.uint32)):
+def init_rng(seed: int, first_env: int, rng_state: wp.array(dtype=wp.uint32)):
+    """Seed each env's RNG from ``seed`` and its global index (``first_env`` + thread), whatever the sharding."""
     env = wp.tid()
-    rng_state[env] = wp.rand_init(seed, env)
+    rng_state[env] = wp.rand_init(seed, first_env + env)
 
 
 @wp.kernel

@@ -7,6 +7,7 @@ state_0 / state_1 / control. The cart and pole DOFs are found by joint name; eve
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from .config import SOLVERS, ConfigError, SimConfig  # noqa: E402
 
 CART_JOINT = "cartJoint"
 POLE_JOINT = "poleJoint"
+MIN_ENVS_PER_SHARD = 512
 
 
 class StageError(ConfigError):
@@ -104,3 +106,14 @@ def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
         cart_dof=cart_dof,
         pole_dof=pole_dof,
     )
+
+
+def shard_bounds(num_envs: int, device: str, cpu_threads: int) -> list[tuple[int, int]]:
+    """[start, stop) env ranges simulated as separate scenes: one on CUDA; on the CPU one per thread
+    (``cpu_threads``, 0 = the available cores), each of at least MIN_ENVS_PER_SHARD envs."""
+    if device != "cpu":
+        return [(0, num_envs)]
+    threads = cpu_threads or len(os.sched_getaffinity(0))
+    count = max(1, min(threads, num_envs // MIN_ENVS_PER_SHARD))
+    edges = [num_envs * k // count for k in range(count + 1)]
+    return list(zip(edges[:-1], edges[1:]))

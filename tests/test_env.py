@@ -8,6 +8,7 @@ from pxr import Usd, UsdPhysics
 
 import cartpole_warp
 from cartpole_warp.config import DEFAULT_STAGE
+from cartpole_warp.scene import shard_bounds
 from conftest import DEVICE, make, random_actions
 
 SAFE = torch.tensor([0.2, 0.1, 0.05, -0.1])
@@ -97,6 +98,25 @@ def test_captured_step_equals_uncaptured(solver):
     plain = rollout(make(64, sim={"solver": solver, "capture": "off"}), 120)
     assert captured[..., 5].sum() > 0, "the rollout must include terminations"
     torch.testing.assert_close(captured, plain, rtol=0, atol=1e-6)
+
+
+def test_sharded_threads_give_the_single_scene_trajectory():
+    """On the CPU 1024 envs split into two scenes stepped in two threads; the split must not change results."""
+    sharded = make(1024, sim={"cpu_threads": 2})
+    assert len(sharded.shards) == (2 if DEVICE == "cpu" else 1)
+    single = make(1024, sim={"cpu_threads": 1})
+    assert len(single.shards) == 1
+    reference = rollout(single, 80)
+    assert reference[..., 5].sum() > 0, "the rollout must include terminations"
+    assert torch.equal(rollout(sharded, 80), reference)
+    assert torch.equal(rollout(make(1024, sim={"cpu_threads": 2, "capture": "off"}), 80), reference)
+
+
+def test_shard_bounds_cover_the_envs():
+    assert shard_bounds(4096, "cpu", 2) == [(0, 2048), (2048, 4096)]
+    assert shard_bounds(5000, "cpu", 3) == [(0, 1666), (1666, 3333), (3333, 5000)]
+    assert shard_bounds(1023, "cpu", 2) == [(0, 1023)], "shards hold at least MIN_ENVS_PER_SHARD envs"
+    assert shard_bounds(65536, "cuda:0", 16) == [(0, 65536)]
 
 
 def test_same_seed_same_trajectory_other_seed_differs():
