@@ -18,7 +18,7 @@ import torch
 import warp as wp
 
 from . import kernels
-from .config import EnvConfig, env_config
+from .config import EnvConfig, SimConfig, env_config
 from .env import CartpoleEnv, GraphReplay, task_params
 from .scene import build_scene, shard_bounds
 
@@ -43,7 +43,7 @@ def physics_rate(cfg: EnvConfig, min_seconds: float) -> float:
     """env-steps/s of captured graphs of random cart forces + ``decimation`` solver steps on fresh scenes,
     sharded (and threaded on the CPU) like the env."""
     graphs = []
-    for start, stop in shard_bounds(cfg.num_envs, cfg.device, cfg.sim.cpu_threads):
+    for start, stop in shard_bounds(cfg.num_envs, cfg.device, cfg.sim):
         scene, num_envs = build_scene(stop - start, cfg.device, cfg.sim), stop - start
         rng_state = wp.zeros(num_envs, dtype=wp.uint32, device=cfg.device)
         wp.launch(kernels.init_rng, dim=num_envs, inputs=[cfg.seed, start], outputs=[rng_state], device=cfg.device)
@@ -104,7 +104,7 @@ def main(argv=None):
           f"{'full/physics':>13}")
     for solver, capture, threads, n in itertools.product(args.solver, args.capture, args.cpu_threads, sweep):
         r = measure(n, args.device, solver, capture, threads, args.preset, args.seconds)
-        shards = len(shard_bounds(n, args.device, threads))
+        shards = len(shard_bounds(n, args.device, SimConfig(solver=solver, cpu_threads=threads)))
         print(f"{solver:<13} {capture:>7} {shards:>6} {n:>9} {r['physics']:>15,.0f} {r['full']:>15,.0f} "
               f"{r['full'] / r['physics']:>12.1%}", flush=True)
 

@@ -44,8 +44,8 @@ class SimConfig:
     capture: str = "auto"
     """Graph capture of the env step: 'auto' (CUDA, and CPU where measured faster: always), 'on' or 'off'."""
     cpu_threads: int = 0
-    """On the CPU, step this many shards of the envs in parallel threads (Warp runs each CPU kernel launch on
-    one thread); 0: one per available core. Shards hold at least 512 envs; ignored on CUDA."""
+    """On the CPU with featherstone, step this many shards of the envs in parallel threads (Warp runs each CPU
+    kernel launch on one thread); 0: one per available core. Shards hold at least 512 envs; ignored on CUDA."""
 
     @property
     def env_dt(self) -> float:

@@ -128,7 +128,7 @@ class CartpoleEnv:
         self.max_episode_length = cfg.max_episode_length
         self.env_dt = cfg.sim.env_dt
         self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim))
-                       for i, (start, stop) in enumerate(shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads))]
+                       for i, (start, stop) in enumerate(shard_bounds(cfg.num_envs, self.device, cfg.sim))]
         self.params = task_params(cfg, self.scene)
         self._streams = self._stream_bridge()
         self._allocate()

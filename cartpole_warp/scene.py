@@ -108,12 +108,13 @@ def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
     )
 
 
-def shard_bounds(num_envs: int, device: str, cpu_threads: int) -> list[tuple[int, int]]:
-    """[start, stop) env ranges simulated as separate scenes: one on CUDA; on the CPU one per thread
-    (``cpu_threads``, 0 = the available cores), each of at least MIN_ENVS_PER_SHARD envs."""
-    if device != "cpu":
+def shard_bounds(num_envs: int, device: str, sim: SimConfig) -> list[tuple[int, int]]:
+    """[start, stop) env ranges simulated as separate scenes: on the CPU with Featherstone one per thread
+    (``sim.cpu_threads``, 0 = the available cores), each of at least MIN_ENVS_PER_SHARD envs; otherwise one.
+    MuJoCo stays in one scene: mujoco-warp's tile kernels share one CPU arena, so concurrent replays abort."""
+    if device != "cpu" or sim.solver != "featherstone":
         return [(0, num_envs)]
-    threads = cpu_threads or len(os.sched_getaffinity(0))
+    threads = sim.cpu_threads or len(os.sched_getaffinity(0))
     count = max(1, min(threads, num_envs // MIN_ENVS_PER_SHARD))
     edges = [num_envs * k // count for k in range(count + 1)]
     return list(zip(edges[:-1], edges[1:]))

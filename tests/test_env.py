@@ -7,7 +7,7 @@ import torch
 from pxr import Usd, UsdPhysics
 
 import cartpole_warp
-from cartpole_warp.config import DEFAULT_STAGE
+from cartpole_warp.config import DEFAULT_STAGE, SimConfig
 from cartpole_warp.scene import shard_bounds
 from conftest import DEVICE, make, random_actions
 
@@ -113,10 +113,12 @@ def test_sharded_threads_give_the_single_scene_trajectory():
 
 
 def test_shard_bounds_cover_the_envs():
-    assert shard_bounds(4096, "cpu", 2) == [(0, 2048), (2048, 4096)]
-    assert shard_bounds(5000, "cpu", 3) == [(0, 1666), (1666, 3333), (3333, 5000)]
-    assert shard_bounds(1023, "cpu", 2) == [(0, 1023)], "shards hold at least MIN_ENVS_PER_SHARD envs"
-    assert shard_bounds(65536, "cuda:0", 16) == [(0, 65536)]
+    two, three = SimConfig(cpu_threads=2), SimConfig(cpu_threads=3)
+    assert shard_bounds(4096, "cpu", two) == [(0, 2048), (2048, 4096)]
+    assert shard_bounds(5000, "cpu", three) == [(0, 1666), (1666, 3333), (3333, 5000)]
+    assert shard_bounds(1023, "cpu", two) == [(0, 1023)], "shards hold at least MIN_ENVS_PER_SHARD envs"
+    assert shard_bounds(65536, "cuda:0", two) == [(0, 65536)]
+    assert shard_bounds(4096, "cpu", SimConfig(solver="mujoco", cpu_threads=2)) == [(0, 4096)]
 
 
 def test_same_seed_same_trajectory_other_seed_differs():
