@@ -104,6 +104,9 @@ class CartpoleGymEnv(gym.Env):
             }
         return obs[0].cpu().numpy(), float(reward[0]), terminated, truncated, step_info
 
+    def close(self):
+        self.core.close()
+
 
 class CartpoleVectorEnv(VectorEnv):
     """The batched ``CartpoleEnv`` as a ``gymnasium.vector.VectorEnv`` (numpy in and out, no loop over envs).
@@ -151,3 +154,6 @@ class CartpoleVectorEnv(VectorEnv):
             infos = {"final_obs": info["final_obs"].cpu().numpy(), "_final_obs": done,
                      "final_info": final_info, "_final_info": done}
         return obs.cpu().numpy(), reward.cpu().numpy(), terminated, truncated, infos
+
+    def close_extras(self, **kwargs):
+        self.core.close()

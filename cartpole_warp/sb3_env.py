@@ -76,6 +76,7 @@ class CartpoleSb3VecEnv(VecEnv):
 
     def close(self) -> None:
         self._actions = None
+        self.env.close()
 
     def _count(self, indices) -> int:
         return len(list(self._get_indices(indices)))

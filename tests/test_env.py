@@ -252,3 +252,18 @@ def test_malformed_stage_and_missing_joint(tmp_path):
     write_stage_with_renamed_joint(renamed)
     with pytest.raises(cartpole_warp.StageError, match="no joint named poleJoint"):
         cartpole_warp.make_env(num_envs=2, device=DEVICE, sim={"stage_path": str(renamed)})
+
+
+
+def test_close_stops_the_shard_threads():
+    import threading
+
+    def shard_threads():
+        return {t for t in threading.enumerate() if t.name.startswith("cartpole-shard")}
+
+    before = shard_threads()
+    env = make(1024, sim={"cpu_threads": 2})
+    env.step(torch.zeros(1024, 1, device=DEVICE))
+    assert len(shard_threads() - before) == (2 if DEVICE == "cpu" else 0)
+    env.close()
+    assert not (shard_threads() - before)
