@@ -1,54 +1,63 @@
-"""Command-line plumbing shared by train.py and play.py: config flags, the field reference, clean errors."""
+"""Command-line glue shared by ``train``, ``play`` and ``bench``: tyro over the config dataclasses (docstrings become
+``--help``), a preset or a run's saved config as the defaults, and one clear error line instead of a traceback."""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import logging
 import sys
-import typing
+from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TypeVar
 
-from .config import ConfigError, TrainConfig, field_docs, set_field
+import tyro
 
-
-def config_reference(cls=TrainConfig, prefix: str = "") -> list[str]:
-    """One line per config field: dotted key, type, default and its docstring."""
-    lines = []
-    docs, hints, default = field_docs(cls), typing.get_type_hints(cls), cls()
-    for f in dataclasses.fields(cls):
-        key, value = f"{prefix}{f.name}", getattr(default, f.name)
-        if dataclasses.is_dataclass(value):
-            lines += config_reference(type(value), f"{key}.")
-        else:
-            kind = getattr(hints[f.name], "__name__", str(hints[f.name]).replace("typing.", ""))
-            lines.append(f"  {key} ({kind}, default {value!r}): {' '.join(docs.get(f.name, '').split())}")
-    return lines
+Args = TypeVar("Args")
 
 
-def add_config_arguments(parser: argparse.ArgumentParser):
-    """``--config PRESET`` and repeatable ``--set KEY=VALUE``; the epilog lists every settable key."""
-    parser.add_argument("--config", default=None, metavar="PRESET",
-                        help="preset name under configs/ (default, tutorial) or a YAML file; default: 'default'")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="set any config field (value parsed as YAML), e.g. --set ppo.entropy_coef=0.01; repeatable")
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.epilog = ("Precedence: dataclass defaults < --config preset < --set < the flags above.\n"
-                     "Config fields (for --set and the YAML presets):\n" + "\n".join(config_reference()))
+def quiet_libraries():
+    """The scripts' choice (the library changes no global setting): warnings but no info lines from Warp (greeting,
+    one line per module load) and Newton (e.g. where ViewerUSD saved)."""
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    logging.getLogger("newton").setLevel(logging.WARNING)
 
 
-def apply_sets(cfg, assignments: list[str]):
-    """Apply ``KEY=VALUE`` strings to ``cfg``."""
-    for item in assignments:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
-        set_field(cfg, key.strip(), value)
-    return cfg
+def peek(argv: list[str], **flags: str | None) -> argparse.Namespace:
+    """The values of a few flags (``name=default``) that decide the defaults of the others, read before tyro parses
+    the whole command line; ``--a-flag`` and ``--a_flag`` both count. Everything else is left alone."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    for name, default in flags.items():
+        parser.add_argument(f"--{name.replace('_', '-')}", f"--{name}", dest=name, default=default)
+    return parser.parse_known_args(argv)[0]
+
+
+def asks_help(argv: list[str]) -> bool:
+    """Whether ``argv`` asks for --help (then no run needs to exist for the defaults)."""
+    return "-h" in argv or "--help" in argv
+
+
+def with_default_value(argv: list[str], flag: str, value: str) -> list[str]:
+    """``argv`` where a bare ``flag`` (last, or followed by another flag) gets ``value``: lets ``--resume`` alone
+    mean ``--resume latest``."""
+    out = []
+    for i, arg in enumerate(argv):
+        out.append(arg)
+        if arg == flag and (i + 1 == len(argv) or argv[i + 1].startswith("-")):
+            out.append(value)
+    return out
+
+
+def parse(cls: type[Args], default: Args, argv: list[str], description: str) -> Args:
+    """tyro's parse of ``argv`` into ``cls``, starting from ``default``; bad or unknown flags exit with code 2 and
+    tyro's message naming the flag."""
+    return tyro.cli(cls, default=default, args=argv, description=description)
 
 
 @contextmanager
-def clean_errors(*expected: type[BaseException]):
-    """Turn the expected (user-facing) errors into 'error: ...' on stderr and exit 2; Ctrl-C into exit 130."""
+def clean_errors(*expected: type[BaseException]) -> Iterator[None]:
+    """Turn the expected (user-facing) errors into one ``error: ...`` line on stderr and exit 2; Ctrl-C into 130."""
     try:
         yield
     except expected as err:

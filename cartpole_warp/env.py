@@ -2,93 +2,13 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
-
 import torch
 import warp as wp
 
 from . import kernels
-from .config import ConfigError, EnvConfig
-from .scene import Scene, build_scene, shard_bounds
-
-
-def _resolve_device(device: str) -> str:
-    """Normalise and check a device string ('cpu', 'cuda', 'cuda:N')."""
-    name = str(device)
-    if name == "cuda":
-        name = "cuda:0"
-    if name == "cpu":
-        return name
-    if not name.startswith("cuda:") or not name[5:].isdigit():
-        raise ConfigError(f"unknown device {device!r}; use 'cpu' or 'cuda:N'")
-    if not wp.is_cuda_available() or not torch.cuda.is_available():
-        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; use --device cpu")
-    if int(name[5:]) >= wp.get_cuda_device_count():
-        raise ConfigError(f"device {device!r} requested but only {wp.get_cuda_device_count()} CUDA device(s) exist")
-    return name
-
-
-def task_params(cfg: EnvConfig, scene: Scene) -> kernels.TaskParams:
-    """The kernels' view of the task config and the scene's DOF layout."""
-    t = cfg.task
-    p = kernels.TaskParams()
-    p.dofs_per_env, p.cart_dof, p.pole_dof = scene.dofs_per_env, scene.cart_dof, scene.pole_dof
-    p.max_push_effort_n = t.max_push_effort_n
-    p.reset_dist_m = t.reset_dist_m
-    p.max_pole_angle_rad = t.max_pole_angle_rad
-    p.failure_reward = t.failure_reward
-    p.alive_reward = t.alive_reward
-    p.pole_angle_weight = t.pole_angle_weight
-    p.cart_vel_weight = t.cart_vel_weight
-    p.pole_vel_weight = t.pole_vel_weight
-    p.reset_half_range = wp.vec4(t.reset_cart_pos_m, t.reset_cart_vel_m_s, t.reset_pole_angle_rad, t.reset_pole_vel_rad_s)
-    p.max_episode_length = cfg.max_episode_length
-    return p
-
-
-@dataclass
-class Shard:
-    """The envs [start, stop) simulated by one scene; on the CPU each shard steps in its own thread."""
-
-    index: int
-    start: int
-    stop: int
-    scene: Scene
-    graph: wp.Graph | None = None
-
-    @property
-    def num_envs(self) -> int:
-        return self.stop - self.start
-
-    def rows(self, array: wp.array) -> wp.array:
-        """The shard's rows of a per-env buffer (a view)."""
-        return array[self.start:self.stop]
-
-    def slot(self, counters: wp.array) -> wp.array:
-        """The shard's own element of a per-shard counter (a view)."""
-        return counters[self.index:self.index + 1]
-
-
-class GraphReplay:
-    """Replays one captured graph per shard: in the calling thread for one, concurrently for several.
-
-    Warp replays a CPU graph in one native call that releases the GIL, so shards use separate cores."""
-
-    def __init__(self, graphs: list):
-        self.graphs = graphs
-        self._pool = ThreadPoolExecutor(len(graphs), thread_name_prefix="cartpole-shard") if len(graphs) > 1 else None
-
-    def __call__(self):
-        if self._pool is None:
-            wp.capture_launch(self.graphs[0])
-        else:
-            for _ in self._pool.map(wp.capture_launch, self.graphs):
-                pass
-
-    def close(self):
-        if self._pool is not None:
-            self._pool.shutdown()
+from .config import EnvConfig, env_config
+from .runtime import Shard, ShardedStep, TorchOrder, resolve_device, shard_bounds
+from .scene import SHARDABLE_SOLVERS, Scene, build_scene
 
 
 class CartpoleEnv:
@@ -123,24 +43,20 @@ class CartpoleEnv:
 
     def __init__(self, cfg: EnvConfig):
         self.cfg = cfg.validate()
-        self.device = _resolve_device(cfg.device)
+        self.device = resolve_device(cfg.device)
         self.num_envs = cfg.num_envs
         self.max_episode_length = cfg.max_episode_length
         self.env_dt = cfg.sim.env_dt
+        bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
         self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim))
-                       for i, (start, stop) in enumerate(shard_bounds(cfg.num_envs, self.device, cfg.sim))]
-        self.params = task_params(cfg, self.scene)
-        self._streams = self._stream_bridge()
+                       for i, (start, stop) in enumerate(bounds)]
+        self.params = kernels.task_params(cfg.task)
+        self.layout = kernels.dof_layout(self.scene.dofs_per_env, self.scene.cart_dof, self.scene.pole_dof)
+        self._order = TorchOrder(self.device)
         self._allocate()
         self._seed(cfg.seed)
         self._launch_reset(self._all_envs)
-        self._replay = None
-        if cfg.sim.capture != "off":
-            for shard in self.shards:
-                with self._on_warp_stream(), wp.ScopedCapture(device=self.device) as capture:
-                    self._step_kernels(shard)
-                shard.graph = capture.graph
-            self._replay = GraphReplay([shard.graph for shard in self.shards])
+        self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
 
     @property
     def scene(self) -> Scene:
@@ -199,38 +115,14 @@ class CartpoleEnv:
     def episode_length_buf(self, value: torch.Tensor):
         self._episode_length_t.copy_(value)
 
-    def _stream_bridge(self):
-        if self.device == "cpu":
-            return None
-        return wp.stream_from_torch(torch.cuda.current_stream(self.device)), wp.get_stream(self.device)
-
-    class _StreamOrder:
-        """Orders Warp work after pending torch work and torch work after the Warp work (CUDA only)."""
-
-        def __init__(self, streams):
-            self.streams = streams
-
-        def __enter__(self):
-            if self.streams:
-                torch_stream, warp_stream = self.streams
-                warp_stream.wait_stream(torch_stream)
-
-        def __exit__(self, *exc):
-            if self.streams:
-                torch_stream, warp_stream = self.streams
-                torch_stream.wait_stream(warp_stream)
-
-    def _on_warp_stream(self):
-        return self._StreamOrder(self._streams)
-
     def _step_kernels(self, shard: Shard):
-        s, p, rows = shard.scene, self.params, shard.rows
-        wp.launch(kernels.apply_actions, dim=shard.num_envs, inputs=[rows(self._actions), p],
+        s, rows = shard.scene, shard.rows
+        wp.launch(kernels.apply_actions, dim=shard.num_envs, inputs=[rows(self._actions), self.params, self.layout],
                   outputs=[s.control.joint_f, shard.slot(self._nonfinite_actions)], device=self.device)
         s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
         wp.launch(
             kernels.finish_step, dim=shard.num_envs,
-            inputs=[p],
+            inputs=[self.params, self.layout, self.max_episode_length],
             outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
                      rows(self._episode_length), rows(self._episode_return), rows(self._reward),
                      rows(self._terminated), rows(self._truncated), rows(self._final_obs), rows(self._ended_return),
@@ -246,12 +138,13 @@ class CartpoleEnv:
     def _launch_reset(self, mask: wp.array):
         for shard in self.shards:
             s, rows = shard.scene, shard.rows
-            wp.launch(kernels.reset_masked, dim=shard.num_envs, inputs=[rows(mask), self.params],
+            wp.launch(kernels.reset_masked, dim=shard.num_envs, inputs=[rows(mask), self.params, self.layout],
                       outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
                                rows(self._episode_length), rows(self._episode_return)], device=self.device)
 
     def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
-        expected = f"a torch.Tensor of shape {' or '.join(str(tuple(s)) for s in shapes)}, dtype {dtype}, on {self.device}"
+        shape = " or ".join(str(tuple(s)) for s in shapes)
+        expected = f"a torch.Tensor of shape {shape}, dtype {dtype}, on {self.device}"
         if not isinstance(value, torch.Tensor):
             raise ValueError(f"{name}: expected {expected}; got {type(value).__name__}")
         if tuple(value.shape) not in [tuple(s) for s in shapes]:
@@ -269,7 +162,7 @@ class CartpoleEnv:
 
     def reset(self, seed: int | None = None) -> tuple[torch.Tensor, dict]:
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
-        with self._on_warp_stream():
+        with self._order:
             if seed is not None:
                 self._seed(seed)
             self._launch_reset(self._all_envs)
@@ -280,12 +173,7 @@ class CartpoleEnv:
         n = self.num_envs
         actions = self._check("actions", actions, ((n, 1), (n,)), torch.float32)
         self.actions_buf.copy_(actions.reshape(n))
-        with self._on_warp_stream():
-            if self._replay is not None:
-                self._replay()
-            else:
-                for shard in self.shards:
-                    self._step_kernels(shard)
+        self._step()
         return (self.obs_buf.clone(), self.reward_buf.clone(), self.terminated_buf.clone(),
                 self.truncated_buf.clone(), self._outputs())
 
@@ -302,19 +190,18 @@ class CartpoleEnv:
             self._mask_in_t.fill_(True)
         else:
             self._mask_in_t.copy_(mask)
-        with self._on_warp_stream():
+        with self._order:
             for shard in self.shards:
                 s, rows = shard.scene, shard.rows
                 wp.launch(kernels.set_states_masked, dim=shard.num_envs,
-                          inputs=[rows(self._states_in), rows(self._mask_in), self.params],
+                          inputs=[rows(self._states_in), rows(self._mask_in), self.layout],
                           outputs=[s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs), rows(self._episode_length),
                                    rows(self._episode_return)], device=self.device)
         return self.obs_buf.clone()
 
     def close(self):
         """Stop the shard threads (the env cannot step afterwards)."""
-        if self._replay is not None:
-            self._replay.close()
+        self._step.close()
 
     def get_observations(self) -> torch.Tensor:
         """The current observations (N, 4), a fresh tensor."""
@@ -327,7 +214,4 @@ def make_env(num_envs: int | None = None, device: str | None = None, seed: int |
 
     ``sim_task_overrides`` take nested dicts, e.g. ``sim={"solver": "mujoco"}``, ``task={"episode_length_s": 5}``.
     """
-    from .config import env_config
-
-    cfg = env_config(preset, num_envs=num_envs, device=device, seed=seed, **sim_task_overrides)
-    return CartpoleEnv(cfg)
+    return CartpoleEnv(env_config(preset, num_envs=num_envs, device=device, seed=seed, **sim_task_overrides))

@@ -5,7 +5,11 @@ Joint arrays are Newton's flat ``joint_q`` / ``joint_qd`` / ``joint_f``: env ``i
 ``[i * dofs_per_env, (i + 1) * dofs_per_env)``.
 """
 
+import typing
+
 import warp as wp
+
+from .config import TaskConfig
 
 END_NONE = wp.constant(0)
 END_CART_OUT = wp.constant(1)
@@ -16,31 +20,46 @@ END_REASONS = ("running", "cart_out_of_range", "pole_fell", "time_limit", "nonfi
 """Names of the codes in ``end_reason``, by code."""
 
 
+TASK_FIELDS = tuple(name for name, kind in typing.get_type_hints(TaskConfig).items() if kind is float)
+"""The float fields of ``TaskConfig``: the task's constants, passed to the kernels under the same names."""
+
+TaskParams = wp.struct(type("TaskParams", (), {
+    "__annotations__": dict.fromkeys(TASK_FIELDS, float),
+    "__module__": __name__,
+    "__qualname__": "TaskParams",
+    "__doc__": "The float fields of TaskConfig, generated from it (the config is the one place they are written).",
+}))
+
+
 @wp.struct
-class TaskParams:
-    """The task's constants, as read from ``TaskConfig`` and the scene's DOF layout."""
+class DofLayout:
+    """Where one env's cart and pole DOFs sit in Newton's flat joint arrays (from the scene)."""
 
     dofs_per_env: int
     cart_dof: int
     pole_dof: int
-    max_push_effort_n: float
-    reset_dist_m: float
-    max_pole_angle_rad: float
-    failure_reward: float
-    alive_reward: float
-    pole_angle_weight: float
-    cart_vel_weight: float
-    pole_vel_weight: float
-    reset_half_range: wp.vec4
-    max_episode_length: int
+
+
+def task_params(task: TaskConfig) -> TaskParams:
+    """The kernels' copy of the task's constants."""
+    params = TaskParams()
+    for name in TASK_FIELDS:
+        setattr(params, name, getattr(task, name))
+    return params
+
+
+def dof_layout(dofs_per_env: int, cart_dof: int, pole_dof: int) -> DofLayout:
+    """The kernels' view of a scene's DOF layout."""
+    layout = DofLayout()
+    layout.dofs_per_env, layout.cart_dof, layout.pole_dof = dofs_per_env, cart_dof, pole_dof
+    return layout
 
 
 @wp.func
-def read_obs(joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), env: int, p: TaskParams):
-    base = env * p.dofs_per_env
-    return wp.vec4(
-        joint_q[base + p.cart_dof], joint_qd[base + p.cart_dof], joint_q[base + p.pole_dof], joint_qd[base + p.pole_dof]
-    )
+def read_obs(joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), env: int, layout: DofLayout):
+    base = env * layout.dofs_per_env
+    cart, pole = base + layout.cart_dof, base + layout.pole_dof
+    return wp.vec4(joint_q[cart], joint_qd[cart], joint_q[pole], joint_qd[pole])
 
 
 @wp.func
@@ -69,10 +88,14 @@ def is_finite4(v: wp.vec4):
 
 @wp.func
 def sample_reset_state(rng_state: wp.array(dtype=wp.uint32), env: int, p: TaskParams):
-    """Uniform in [-half_range, half_range] per component; advances the env's RNG state."""
+    """[cart_pos, cart_vel, pole_angle, pole_vel], each uniform in [-range, range]; advances the env's RNG."""
     s = rng_state[env]
-    h = p.reset_half_range
-    x = wp.vec4(wp.randf(s, -h[0], h[0]), wp.randf(s, -h[1], h[1]), wp.randf(s, -h[2], h[2]), wp.randf(s, -h[3], h[3]))
+    x = wp.vec4(
+        wp.randf(s, -p.reset_cart_pos_m, p.reset_cart_pos_m),
+        wp.randf(s, -p.reset_cart_vel_m_s, p.reset_cart_vel_m_s),
+        wp.randf(s, -p.reset_pole_angle_rad, p.reset_pole_angle_rad),
+        wp.randf(s, -p.reset_pole_vel_rad_s, p.reset_pole_vel_rad_s),
+    )
     rng_state[env] = s
     return x
 
@@ -81,21 +104,21 @@ def sample_reset_state(rng_state: wp.array(dtype=wp.uint32), env: int, p: TaskPa
 def begin_episode(
     env: int,
     state: wp.vec4,
-    p: TaskParams,
+    layout: DofLayout,
     joint_q: wp.array(dtype=float),
     joint_qd: wp.array(dtype=float),
     obs: wp.array(dtype=wp.vec4),
     episode_length: wp.array(dtype=wp.int32),
     episode_return: wp.array(dtype=float),
 ):
-    base = env * p.dofs_per_env
-    for d in range(p.dofs_per_env):
+    base = env * layout.dofs_per_env
+    for d in range(layout.dofs_per_env):
         joint_q[base + d] = 0.0
         joint_qd[base + d] = 0.0
-    joint_q[base + p.cart_dof] = state[0]
-    joint_qd[base + p.cart_dof] = state[1]
-    joint_q[base + p.pole_dof] = state[2]
-    joint_qd[base + p.pole_dof] = state[3]
+    joint_q[base + layout.cart_dof] = state[0]
+    joint_qd[base + layout.cart_dof] = state[1]
+    joint_q[base + layout.pole_dof] = state[2]
+    joint_qd[base + layout.pole_dof] = state[3]
     obs[env] = state
     episode_length[env] = 0
     episode_return[env] = 0.0
@@ -112,6 +135,7 @@ def init_rng(seed: int, first_env: int, rng_state: wp.array(dtype=wp.uint32)):
 def apply_actions(
     actions: wp.array(dtype=float),
     p: TaskParams,
+    layout: DofLayout,
     joint_f: wp.array(dtype=float),
     nonfinite_action_count: wp.array(dtype=wp.int32),
 ):
@@ -121,23 +145,25 @@ def apply_actions(
     if not wp.isfinite(a):
         a = 0.0
         wp.atomic_add(nonfinite_action_count, 0, 1)
-    joint_f[env * p.dofs_per_env + p.cart_dof] = p.max_push_effort_n * wp.clamp(a, -1.0, 1.0)
+    joint_f[env * layout.dofs_per_env + layout.cart_dof] = p.max_push_effort_n * wp.clamp(a, -1.0, 1.0)
 
 
 @wp.kernel
 def random_forces(
-    rng_state: wp.array(dtype=wp.uint32), p: TaskParams, joint_f: wp.array(dtype=float)
+    rng_state: wp.array(dtype=wp.uint32), p: TaskParams, layout: DofLayout, joint_f: wp.array(dtype=float)
 ):
     """Uniform random cart force in [-max_push_effort, max_push_effort] (benchmarks the physics alone)."""
     env = wp.tid()
     s = rng_state[env]
-    joint_f[env * p.dofs_per_env + p.cart_dof] = wp.randf(s, -p.max_push_effort_n, p.max_push_effort_n)
+    joint_f[env * layout.dofs_per_env + layout.cart_dof] = wp.randf(s, -p.max_push_effort_n, p.max_push_effort_n)
     rng_state[env] = s
 
 
 @wp.kernel
 def finish_step(
     p: TaskParams,
+    layout: DofLayout,
+    max_episode_length: int,
     rng_state: wp.array(dtype=wp.uint32),
     joint_q: wp.array(dtype=float),
     joint_qd: wp.array(dtype=float),
@@ -159,10 +185,10 @@ def finish_step(
     ends the episode as a failure, reports the last finite observation and is counted.
     """
     env = wp.tid()
-    o = read_obs(joint_q, joint_qd, env, p)
+    o = read_obs(joint_q, joint_qd, env, layout)
     length = episode_length[env] + 1
     reason = END_NONE
-    r = float(0.0)
+    r = 0.0
     if is_finite4(o):
         reason = failure_reason(o, p)
         r = shaped_reward(o, p)
@@ -172,7 +198,7 @@ def finish_step(
         wp.atomic_add(nonfinite_state_count, 0, 1)
     if reason != END_NONE:
         r = p.failure_reward
-    elif length >= p.max_episode_length:
+    elif length >= max_episode_length:
         reason = END_TIME_LIMIT
     ret = episode_return[env] + r
 
@@ -189,13 +215,14 @@ def finish_step(
         ended_return[env] = ret
         ended_length[env] = length
         state = sample_reset_state(rng_state, env, p)
-        begin_episode(env, state, p, joint_q, joint_qd, obs, episode_length, episode_return)
+        begin_episode(env, state, layout, joint_q, joint_qd, obs, episode_length, episode_return)
 
 
 @wp.kernel
 def reset_masked(
     mask: wp.array(dtype=wp.bool),
     p: TaskParams,
+    layout: DofLayout,
     rng_state: wp.array(dtype=wp.uint32),
     joint_q: wp.array(dtype=float),
     joint_qd: wp.array(dtype=float),
@@ -207,14 +234,14 @@ def reset_masked(
     env = wp.tid()
     if mask[env]:
         state = sample_reset_state(rng_state, env, p)
-        begin_episode(env, state, p, joint_q, joint_qd, obs, episode_length, episode_return)
+        begin_episode(env, state, layout, joint_q, joint_qd, obs, episode_length, episode_return)
 
 
 @wp.kernel
 def set_states_masked(
     states: wp.array(dtype=wp.vec4),
     mask: wp.array(dtype=wp.bool),
-    p: TaskParams,
+    layout: DofLayout,
     joint_q: wp.array(dtype=float),
     joint_qd: wp.array(dtype=float),
     obs: wp.array(dtype=wp.vec4),
@@ -224,4 +251,4 @@ def set_states_masked(
     """Start a new episode from the given state in every env where ``mask`` is set."""
     env = wp.tid()
     if mask[env]:
-        begin_episode(env, states[env], p, joint_q, joint_qd, obs, episode_length, episode_return)
+        begin_episode(env, states[env], layout, joint_q, joint_qd, obs, episode_length, episode_return)

@@ -7,21 +7,19 @@ state_0 / state_1 / control. The cart and pole DOFs are found by joint name; eve
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import warp as wp
+import newton
 
-wp.config.log_level = wp.LOG_WARNING
-
-import newton  # noqa: E402
-
-from .config import SOLVERS, ConfigError, SimConfig  # noqa: E402
+from .config import ConfigError, SimConfig
+from .runtime import init_warp
 
 CART_JOINT = "cartJoint"
 POLE_JOINT = "poleJoint"
-MIN_ENVS_PER_SHARD = 512
+SHARDABLE_SOLVERS = ("featherstone",)
+"""Solvers whose CPU scenes can step in parallel threads; mujoco-warp's tile kernels share one CPU arena, so
+concurrent replays of MuJoCo scenes abort."""
 
 
 class StageError(ConfigError):
@@ -30,7 +28,7 @@ class StageError(ConfigError):
 
 @dataclass
 class Scene:
-    """A finalized Newton model of ``num_envs`` cartpoles and the solver that steps it."""
+    """A finalized Newton model of ``num_envs`` cartpoles (one world each) and the solver that steps it."""
 
     model: newton.Model
     solver: newton.solvers.SolverBase
@@ -55,7 +53,7 @@ class Scene:
             self.state_0, self.state_1 = self.state_1, self.state_0
 
 
-def load_cartpole(stage_path: str | Path) -> tuple[newton.ModelBuilder, int, int]:
+def load_cartpole(stage_path: Path) -> tuple[newton.ModelBuilder, int, int]:
     """One cartpole from the stage: (builder, cart_dof, pole_dof)."""
     path = Path(stage_path)
     if not path.is_file():
@@ -88,16 +86,14 @@ def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBas
 
 def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
     """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
-    if sim.solver not in SOLVERS:
-        raise ConfigError(f"unknown solver {sim.solver!r}; choose one of {', '.join(SOLVERS)}")
-    cartpole, cart_dof, pole_dof = load_cartpole(sim.stage_path)
+    init_warp()
+    cartpole, cart_dof, pole_dof = load_cartpole(sim.stage)
     builder = newton.ModelBuilder()
     builder.replicate(cartpole, copy_count=num_envs)
     model = builder.finalize(device=device)
-    solver = make_solver(model, sim)
     return Scene(
         model=model,
-        solver=solver,
+        solver=make_solver(model, sim),
         state_0=model.state(),
         state_1=model.state(),
         control=model.control(),
@@ -106,15 +102,3 @@ def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
         cart_dof=cart_dof,
         pole_dof=pole_dof,
     )
-
-
-def shard_bounds(num_envs: int, device: str, sim: SimConfig) -> list[tuple[int, int]]:
-    """[start, stop) env ranges simulated as separate scenes: on the CPU with Featherstone one per thread
-    (``sim.cpu_threads``, 0 = the available cores), each of at least MIN_ENVS_PER_SHARD envs; otherwise one.
-    MuJoCo stays in one scene: mujoco-warp's tile kernels share one CPU arena, so concurrent replays abort."""
-    if device != "cpu" or sim.solver != "featherstone":
-        return [(0, num_envs)]
-    threads = sim.cpu_threads or len(os.sched_getaffinity(0))
-    count = max(1, min(threads, num_envs // MIN_ENVS_PER_SHARD))
-    edges = [num_envs * k // count for k in range(count + 1)]
-    return list(zip(edges[:-1], edges[1:]))

@@ -1,10 +1,12 @@
-"""Shared test helpers: small envs with fixed seeds.
+"""Shared fixtures: small envs on the test device with fixed seeds, fixed action sequences, the repository root.
 
 Tests run on the CPU; ``CARTPOLE_TEST_DEVICE=cuda:0 pytest`` runs the env tests on a GPU instead.
 """
 
 import os
+from pathlib import Path
 
+import pytest
 import torch
 
 import cartpole_warp
@@ -12,12 +14,41 @@ import cartpole_warp
 DEVICE = os.environ.get("CARTPOLE_TEST_DEVICE", "cpu")
 
 
-def make(num_envs=64, seed=0, preset="default", **overrides):
-    """An env on the test device from a preset with nested overrides (sim={...}, task={...})."""
-    return cartpole_warp.make_env(num_envs=num_envs, device=DEVICE, seed=seed, preset=preset, **overrides)
+@pytest.fixture(scope="session")
+def device() -> str:
+    """The device the env tests run on."""
+    return DEVICE
 
 
-def random_actions(num_envs, steps, seed=0, scale=1.5):
-    """A fixed (steps, num_envs, 1) action sequence on the test device, partly outside [-1, 1]."""
-    gen = torch.Generator().manual_seed(seed)
-    return ((torch.rand((steps, num_envs, 1), generator=gen) * 2 - 1) * scale).to(DEVICE)
+@pytest.fixture(scope="session")
+def repo() -> Path:
+    """The repository root."""
+    return Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def make():
+    """``make(num_envs=64, seed=0, preset="default", **overrides)``: an env on the test device from a preset with
+    nested overrides (sim={...}, task={...}); every env made is closed after the test."""
+    envs = []
+
+    def factory(num_envs=64, seed=0, preset="default", **overrides):
+        env = cartpole_warp.make_env(num_envs=num_envs, device=DEVICE, seed=seed, preset=preset, **overrides)
+        envs.append(env)
+        return env
+
+    yield factory
+    for env in envs:
+        env.close()
+
+
+@pytest.fixture
+def random_actions():
+    """``random_actions(num_envs, steps, seed=0, scale=1.5)``: a fixed (steps, num_envs, 1) action sequence on the
+    test device, partly outside [-1, 1]."""
+
+    def actions(num_envs, steps, seed=0, scale=1.5):
+        gen = torch.Generator().manual_seed(seed)
+        return ((torch.rand((steps, num_envs, 1), generator=gen) * 2 - 1) * scale).to(DEVICE)
+
+    return actions

@@ -7,22 +7,21 @@ import torch
 from pxr import Usd, UsdPhysics
 
 import cartpole_warp
-from cartpole_warp.config import DEFAULT_STAGE, SimConfig
-from cartpole_warp.scene import shard_bounds
-from conftest import DEVICE, make, random_actions
+from cartpole_warp.config import data_path
+from cartpole_warp.runtime import shard_bounds
 
 SAFE = torch.tensor([0.2, 0.1, 0.05, -0.1])
 
 
-def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs():
+def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs(make, random_actions, device):
     n = 64
     ending = torch.arange(n) < 10
     states = SAFE.repeat(n, 1) + 0.01 * torch.arange(n).unsqueeze(1)
     out_of_range = states.clone()
     out_of_range[ending, 0] = 3.5
     reference, env = make(n), make(n)
-    reference.set_state(states.to(DEVICE))
-    env.set_state(out_of_range.to(DEVICE))
+    reference.set_state(states.to(device))
+    env.set_state(out_of_range.to(device))
     actions = random_actions(n, 1)[0]
     ref_obs, *_ = reference.step(actions)
     obs, reward, terminated, truncated, info = env.step(actions)
@@ -39,11 +38,11 @@ def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs():
     assert (info["end_reason"].cpu()[ending] == 1).all()
 
 
-def test_time_outs_are_truncations_not_terminations():
+def test_time_outs_are_truncations_not_terminations(make, device):
     env = make(16, task={"episode_length_s": 0.1})
     assert env.max_episode_length == math.ceil(0.1 / env.env_dt)
-    env.set_state(torch.zeros(16, 4, device=DEVICE))
-    zero = torch.zeros(16, 1, device=DEVICE)
+    env.set_state(torch.zeros(16, 4, device=device))
+    zero = torch.zeros(16, 1, device=device)
     for step in range(1, env.max_episode_length + 1):
         obs, reward, terminated, truncated, info = env.step(zero)
         assert not terminated.any()
@@ -54,15 +53,15 @@ def test_time_outs_are_truncations_not_terminations():
     assert (info["final_obs"].cpu() == 0).all() and (obs.cpu()[:, 0].abs() > 0).any()
 
 
-def test_episode_length_buf_assignment_sets_the_counters():
+def test_episode_length_buf_assignment_sets_the_counters(make, device):
     env = make(8, task={"episode_length_s": 1.0})
-    env.set_state(torch.zeros(8, 4, device=DEVICE))
-    env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=DEVICE)
-    _, _, terminated, truncated, _ = env.step(torch.zeros(8, 1, device=DEVICE))
+    env.set_state(torch.zeros(8, 4, device=device))
+    env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=device)
+    _, _, terminated, truncated, _ = env.step(torch.zeros(8, 1, device=device))
     assert truncated.all() and not terminated.any()
 
 
-def test_episode_statistics_sum_the_rewards():
+def test_episode_statistics_sum_the_rewards(make, random_actions):
     n, steps = 32, 150
     env = make(n, seed=5)
     env.reset()
@@ -82,10 +81,10 @@ def test_episode_statistics_sum_the_rewards():
     assert checked >= n
 
 
-def rollout(env, steps, seed=0):
+def rollout(env, actions_sequence):
     env.reset()
     trajectory = []
-    for actions in random_actions(env.num_envs, steps, seed=seed):
+    for actions in actions_sequence:
         obs, reward, terminated, truncated, info = env.step(actions)
         trajectory.append(torch.cat([obs, reward[:, None], terminated[:, None], truncated[:, None],
                                      info["final_obs"]], dim=1).cpu())
@@ -93,43 +92,47 @@ def rollout(env, steps, seed=0):
 
 
 @pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
-def test_captured_step_equals_uncaptured(solver):
-    captured = rollout(make(64, sim={"solver": solver, "capture": "on"}), 120)
-    plain = rollout(make(64, sim={"solver": solver, "capture": "off"}), 120)
+def test_captured_step_equals_uncaptured(solver, make, random_actions):
+    actions = random_actions(64, 120)
+    captured = rollout(make(64, sim={"solver": solver, "capture": "on"}), actions)
+    plain = rollout(make(64, sim={"solver": solver, "capture": "off"}), actions)
     assert captured[..., 5].sum() > 0, "the rollout must include terminations"
     torch.testing.assert_close(captured, plain, rtol=0, atol=1e-6)
 
 
-def test_sharded_threads_give_the_single_scene_trajectory():
+def test_sharded_threads_give_the_single_scene_trajectory(make, random_actions, device):
     """On the CPU 1024 envs split into two scenes stepped in two threads; the split must not change results."""
     sharded = make(1024, sim={"cpu_threads": 2})
-    assert len(sharded.shards) == (2 if DEVICE == "cpu" else 1)
+    assert len(sharded.shards) == (2 if device == "cpu" else 1)
     single = make(1024, sim={"cpu_threads": 1})
     assert len(single.shards) == 1
-    reference = rollout(single, 80)
+    actions = random_actions(1024, 80)
+    reference = rollout(single, actions)
     assert reference[..., 5].sum() > 0, "the rollout must include terminations"
-    assert torch.equal(rollout(sharded, 80), reference)
-    assert torch.equal(rollout(make(1024, sim={"cpu_threads": 2, "capture": "off"}), 80), reference)
+    assert torch.equal(rollout(sharded, actions), reference)
+    assert torch.equal(rollout(make(1024, sim={"cpu_threads": 2, "capture": "off"}), actions), reference)
 
 
-def test_shard_bounds_cover_the_envs():
-    two, three = SimConfig(cpu_threads=2), SimConfig(cpu_threads=3)
-    assert shard_bounds(4096, "cpu", two) == [(0, 2048), (2048, 4096)]
-    assert shard_bounds(5000, "cpu", three) == [(0, 1666), (1666, 3333), (3333, 5000)]
-    assert shard_bounds(1023, "cpu", two) == [(0, 1023)], "shards hold at least MIN_ENVS_PER_SHARD envs"
-    assert shard_bounds(65536, "cuda:0", two) == [(0, 65536)]
-    assert shard_bounds(4096, "cpu", SimConfig(solver="mujoco", cpu_threads=2)) == [(0, 4096)]
+def test_shard_bounds_cover_the_envs(make):
+    assert shard_bounds(4096, "cpu", 2) == [(0, 2048), (2048, 4096)]
+    assert shard_bounds(5000, "cpu", 3) == [(0, 1666), (1666, 3333), (3333, 5000)]
+    assert shard_bounds(1023, "cpu", 2) == [(0, 1023)], "shards hold at least MIN_ENVS_PER_SHARD envs"
+    assert shard_bounds(65536, "cuda:0", 2) == [(0, 65536)]
+    assert shard_bounds(4096, "cpu", 2, shardable=False) == [(0, 4096)]
+    if make(1024, sim={"cpu_threads": 2}).device == "cpu":
+        assert len(make(1024, sim={"solver": "mujoco", "cpu_threads": 2}).shards) == 1, "MuJoCo stays in one scene"
 
 
-def test_same_seed_same_trajectory_other_seed_differs():
-    first = rollout(make(64, seed=11), 100)
-    again = rollout(make(64, seed=11), 100)
-    other = rollout(make(64, seed=12), 100)
+def test_same_seed_same_trajectory_other_seed_differs(make, random_actions):
+    actions = random_actions(64, 100)
+    first = rollout(make(64, seed=11), actions)
+    again = rollout(make(64, seed=11), actions)
+    other = rollout(make(64, seed=12), actions)
     assert torch.equal(first, again)
     assert not torch.allclose(first, other)
 
 
-def test_reset_with_seed_restarts_the_random_stream():
+def test_reset_with_seed_restarts_the_random_stream(make):
     env = make(64, seed=0)
     first = env.reset(seed=7)[0]
     env.reset()
@@ -137,7 +140,7 @@ def test_reset_with_seed_restarts_the_random_stream():
 
 
 @pytest.mark.parametrize("num_envs", [1, 64, 4096])
-def test_sizes(num_envs):
+def test_sizes(num_envs, make, random_actions, device):
     env = make(num_envs)
     obs, info = env.reset()
     assert obs.shape == (num_envs, 4) and obs.dtype == torch.float32 and str(obs.device) == env.device
@@ -148,7 +151,7 @@ def test_sizes(num_envs):
     assert torch.isfinite(obs).all()
     assert env.episode_length_buf.shape == (num_envs,)
     # (N,) actions are accepted as well as (N, 1)
-    env.step(torch.zeros(num_envs, device=DEVICE))
+    env.step(torch.zeros(num_envs, device=device))
 
 
 @pytest.mark.parametrize(
@@ -162,61 +165,61 @@ def test_sizes(num_envs):
         ([0.0] * 8, "list"),
     ],
 )
-def test_bad_actions_raise_value_error(actions, message):
+def test_bad_actions_raise_value_error(actions, message, make, device):
     env = make(8)
     if isinstance(actions, torch.Tensor) and actions.device.type != "meta":
-        actions = actions.to(DEVICE)
+        actions = actions.to(device)
     with pytest.raises(ValueError, match=message) as err:
         env.step(actions)
     assert "expected" in str(err.value)
 
 
-def test_nonfinite_actions_are_applied_as_zero_and_counted():
+def test_nonfinite_actions_are_applied_as_zero_and_counted(make, device):
     env, reference = make(8), make(8)
-    states = SAFE.repeat(8, 1).to(DEVICE)
+    states = SAFE.repeat(8, 1).to(device)
     env.set_state(states)
     reference.set_state(states)
-    bad = torch.tensor([[math.nan], [math.inf], [-math.inf], [0.0], [0.0], [0.0], [0.0], [0.0]], device=DEVICE)
+    bad = torch.tensor([[math.nan], [math.inf], [-math.inf], [0.0], [0.0], [0.0], [0.0], [0.0]], device=device)
     obs, *_, info = env.step(bad)
-    ref_obs, *_ = reference.step(torch.zeros(8, 1, device=DEVICE))
+    ref_obs, *_ = reference.step(torch.zeros(8, 1, device=device))
     assert torch.equal(obs, ref_obs)
     assert int(info["nonfinite_actions"]) == 3
 
 
-def test_nonfinite_physics_state_is_reset_and_counted():
+def test_nonfinite_physics_state_is_reset_and_counted(make, device):
     env = make(8)
-    env.set_state(SAFE.repeat(8, 1).to(DEVICE))
+    env.set_state(SAFE.repeat(8, 1).to(device))
     last_finite = env.get_observations()
     qd = env.scene.state_0.joint_qd
     values = qd.numpy()
     values[3 * env.scene.dofs_per_env + env.scene.pole_dof] = math.nan
     qd.assign(values)
-    obs, reward, terminated, truncated, info = env.step(torch.zeros(8, 1, device=DEVICE))
+    obs, reward, terminated, truncated, info = env.step(torch.zeros(8, 1, device=device))
     assert torch.isfinite(obs).all() and torch.isfinite(info["final_obs"]).all()
     assert int(info["nonfinite_states"]) == 1
     assert terminated.cpu().tolist() == [False, False, False, True, False, False, False, False]
     assert int(info["end_reason"][3]) == 4 and float(reward[3]) == -2.0
     assert torch.equal(info["final_obs"][3], last_finite[3])
-    obs, *_ = env.step(torch.zeros(8, 1, device=DEVICE))
+    obs, *_ = env.step(torch.zeros(8, 1, device=device))
     assert torch.isfinite(obs).all()
 
 
-def test_set_state_validates_and_masks():
+def test_set_state_validates_and_masks(make, device):
     env = make(4)
     env.reset()
     before = env.get_observations()
-    states = torch.arange(16, dtype=torch.float32, device=DEVICE).reshape(4, 4) / 100
-    mask = torch.tensor([True, False, True, False], device=DEVICE)
+    states = torch.arange(16, dtype=torch.float32, device=device).reshape(4, 4) / 100
+    mask = torch.tensor([True, False, True, False], device=device)
     obs = env.set_state(states, mask)
     assert torch.equal(obs[mask], states[mask]) and torch.equal(obs[~mask], before[~mask])
     with pytest.raises(ValueError, match="finite"):
-        env.set_state(torch.full((4, 4), math.nan, device=DEVICE))
+        env.set_state(torch.full((4, 4), math.nan, device=device))
     with pytest.raises(ValueError, match="shape"):
-        env.set_state(torch.zeros(4, 3, device=DEVICE))
+        env.set_state(torch.zeros(4, 3, device=device))
 
 
 def write_stage_with_renamed_joint(path):
-    stage = Usd.Stage.Open(str(DEFAULT_STAGE))
+    stage = Usd.Stage.Open(str(data_path("usd", "cartpole.usda")))
     stage.GetRootLayer().Export(str(path))
     stage = Usd.Stage.Open(str(path))
     UsdPhysics.RevoluteJoint(stage.GetPrimAtPath("/cartpole/poleJoint")).GetPrim().SetActive(False)
@@ -229,7 +232,7 @@ def write_stage_with_renamed_joint(path):
         ({"num_envs": 0}, "num_envs"),
         ({"sim": {"physics_dt": 0.0}}, "physics_dt"),
         ({"sim": {"physics_dt": -0.01}}, "physics_dt"),
-        ({"sim": {"solver": "bullet"}}, "unknown solver 'bullet'"),
+        ({"sim": {"solver": "bullet"}}, "sim.solver: Input should be 'featherstone' or 'mujoco'"),
         ({"sim": {"decimation": 3}}, "mass_matrix_interval"),
         ({"preset": "nonexistent"}, "unknown preset 'nonexistent'"),
         ({"sim": {"no_such_field": 1}}, "unknown config key 'sim.no_such_field'"),
@@ -237,25 +240,24 @@ def write_stage_with_renamed_joint(path):
         ({"device": "tpu"}, "unknown device"),
     ],
 )
-def test_invalid_config_names_the_problem(kwargs, message):
-    kwargs = {"num_envs": 4, "device": DEVICE, **kwargs}
+def test_invalid_config_names_the_problem(kwargs, message, device):
+    kwargs = {"num_envs": 4, "device": device, **kwargs}
     with pytest.raises(cartpole_warp.ConfigError, match=message):
         cartpole_warp.make_env(**kwargs)
 
 
-def test_malformed_stage_and_missing_joint(tmp_path):
+def test_malformed_stage_and_missing_joint(tmp_path, device):
     garbage = tmp_path / "garbage.usda"
     garbage.write_text("#usda 1.0\nthis is not usd {")
     with pytest.raises(cartpole_warp.StageError, match="cannot load USD stage"):
-        cartpole_warp.make_env(num_envs=2, device=DEVICE, sim={"stage_path": str(garbage)})
+        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(garbage)})
     renamed = tmp_path / "no_pole_joint.usda"
     write_stage_with_renamed_joint(renamed)
     with pytest.raises(cartpole_warp.StageError, match="no joint named poleJoint"):
-        cartpole_warp.make_env(num_envs=2, device=DEVICE, sim={"stage_path": str(renamed)})
+        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(renamed)})
 
 
-
-def test_close_stops_the_shard_threads():
+def test_close_stops_the_shard_threads(make, device):
     import threading
 
     def shard_threads():
@@ -263,7 +265,7 @@ def test_close_stops_the_shard_threads():
 
     before = shard_threads()
     env = make(1024, sim={"cpu_threads": 2})
-    env.step(torch.zeros(1024, 1, device=DEVICE))
-    assert len(shard_threads() - before) == (2 if DEVICE == "cpu" else 0)
+    env.step(torch.zeros(1024, 1, device=device))
+    assert len(shard_threads() - before) == (2 if device == "cpu" else 0)
     env.close()
     assert not (shard_threads() - before)

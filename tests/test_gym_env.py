@@ -10,9 +10,9 @@ import torch
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
-import cartpole_warp
 from cartpole_warp import CartpoleGymEnv, CartpoleVectorEnv, make_env
 from cartpole_warp.kernels import END_REASONS
+from cartpole_warp.wrappers.gymnasium import ENV_IDS
 
 TUTORIAL_ID = "cartpole_warp/CartpoleTutorial-v0"
 DEFAULT_ID = "cartpole_warp/Cartpole-v0"
@@ -46,7 +46,7 @@ def test_registered_ids_build_their_presets():
     default = gym.make(DEFAULT_ID, seed=4).unwrapped.core
     assert default.max_episode_length == 600
     assert default.cfg.seed == 4
-    assert set(cartpole_warp.gym_env.ENV_IDS) <= set(gym.registry)
+    assert set(ENV_IDS) <= set(gym.registry)
 
 
 def test_single_env_matches_batched_env_with_one_env():

@@ -7,14 +7,16 @@ import pytest
 import torch
 from pxr import Usd, UsdPhysics
 
-from cartpole_warp.config import DEFAULT_STAGE
-from conftest import make
+from cartpole_warp.config import data_path
 
 DURATION_S = 1.2
 PHYSICS_DT_S = 1.0 / 4000.0
 
 
-def stage_parameters(path=DEFAULT_STAGE):
+STAGE = data_path("usd", "cartpole.usda")
+
+
+def stage_parameters(path=STAGE):
     """Cart mass, pole mass, hinge-to-COM length, pole inertia about its COM (hinge axis), gravity; from the stage."""
     stage = Usd.Stage.Open(str(path))
     cart = UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/cart"))
@@ -36,16 +38,16 @@ def stage_parameters(path=DEFAULT_STAGE):
 def closed_form_rollout(state0, forces, dt, p, substeps=10):
     """RK4 of the rigid cart + rigid pole (Lagrange equations); force held constant over each dt.
 
-    The pole angle theta turns about +X, so the pole's COM sits at (y, z) = (x - l sin theta, l cos theta).
+    The pole angle theta turns about +X, so the pole's COM sits at (y, z) = (x - com sin theta, com cos theta).
     """
-    M, m, l, inertia, g = p["cart_mass"], p["pole_mass"], p["com_length"], p["pole_inertia"], p["gravity"]
+    M, m, com, inertia, g = p["cart_mass"], p["pole_mass"], p["com_length"], p["pole_inertia"], p["gravity"]
 
     def deriv(s, force):
         x, xd, th, thd = s
-        a11, a12 = M + m, -m * l * math.cos(th)
-        a21, a22 = -m * l * math.cos(th), m * l * l + inertia
-        b1 = force - m * l * math.sin(th) * thd * thd
-        b2 = m * g * l * math.sin(th)
+        a11, a12 = M + m, -m * com * math.cos(th)
+        a21, a22 = -m * com * math.cos(th), m * com * com + inertia
+        b1 = force - m * com * math.sin(th) * thd * thd
+        b2 = m * g * com * math.sin(th)
         det = a11 * a22 - a12 * a21
         return np.array([xd, (b1 * a22 - a12 * b2) / det, thd, (a11 * b2 - a21 * b1) / det])
 
@@ -72,7 +74,7 @@ def test_stage_parameters_are_the_classic_cartpole():
 
 
 @pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
-def test_trajectory_matches_closed_form(solver):
+def test_trajectory_matches_closed_form(solver, make):
     """1.2 s under a fixed force sequence (with pulses beyond the action clip) from three starting states.
 
     Both solvers integrate semi-implicitly (first order): at 1/4000 s the error is about 0.5% of each
@@ -86,10 +88,12 @@ def test_trajectory_matches_closed_form(solver):
     env.set_state(starts.to(env.device))
     t = np.arange(steps) * PHYSICS_DT_S
     pulse = np.where((t >= 0.3) & (t < 0.305), 2.5, 0.0) - np.where((t >= 0.6) & (t < 0.605), 3.0, 0.0)
-    actions = np.stack([0.08 * np.sin(2 * math.pi * 1.5 * t) + pulse, 0.03 * np.cos(7 * t) - pulse, -0.02 + pulse], axis=1)
+    actions = np.stack([0.08 * np.sin(2 * math.pi * 1.5 * t) + pulse, 0.03 * np.cos(7 * t) - pulse, -0.02 + pulse],
+                       axis=1)
     newton_traj = []
     for k in range(steps):
-        obs, _, terminated, truncated, _ = env.step(torch.tensor(actions[k], dtype=torch.float32, device=env.device).reshape(3, 1))
+        step_actions = torch.tensor(actions[k], dtype=torch.float32, device=env.device).reshape(3, 1)
+        obs, _, terminated, truncated, _ = env.step(step_actions)
         assert not (terminated.any() or truncated.any())
         newton_traj.append(obs.cpu().numpy().astype(np.float64))
     newton_traj = np.array(newton_traj)

@@ -1,27 +1,15 @@
-"""Stable-Baselines3 adapter: the VecEnv contract, a short PPO run, the tutorial trainer and policy loading."""
-
-import json
-import math
-import subprocess
-import sys
-from pathlib import Path
+"""Stable-Baselines3 adapter: the VecEnv contract and a short PPO run."""
 
 import numpy as np
 import pytest
 import torch
-import yaml
-from PIL import Image
-from pxr import Usd
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
-from cartpole_warp import CartpoleGymEnv, env_config, make_env
-from cartpole_warp.config import Sb3PpoConfig
-from cartpole_warp.runs import SB3_MODEL_FILE as MODEL_FILE
-from cartpole_warp.sb3_agent import load_sb3_policy, train_tutorial_ppo
-from cartpole_warp.sb3_env import CartpoleSb3VecEnv
+from cartpole_warp import CartpoleGymEnv, make_env
+from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
 
 SHORT_EPISODES = {"episode_length_s": 0.2}
 """12 env steps at 60 Hz: truncations within a short test."""
@@ -103,51 +91,3 @@ def test_short_ppo_run_on_vec_env():
     assert model.num_timesteps >= 4096
     assert len(model.ep_info_buffer) > 0
     assert all(e["l"] > 0 for e in model.ep_info_buffer)
-
-
-def test_train_tutorial_ppo_saves_a_loadable_policy(tmp_path):
-    quick = Sb3PpoConfig(total_timesteps=1000, n_steps=500, batch_size=500, n_epochs=2)
-    threads_before = torch.get_num_threads()
-    stats = train_tutorial_ppo(env_config("tutorial"), tmp_path, ppo=quick, seed=0, verbose=0)
-    assert stats["model_path"] == str(tmp_path / MODEL_FILE) and (tmp_path / MODEL_FILE).is_file()
-    assert list(tmp_path.glob("events.out.tfevents.*"))
-    assert torch.get_num_threads() == threads_before
-    assert stats["timesteps"] == 1000 and stats["episodes"] > 0
-    assert math.isfinite(stats["ep_len_mean"]) and math.isfinite(stats["ep_rew_mean"])
-    policy = load_sb3_policy(tmp_path / MODEL_FILE)
-    obs = torch.randn(5, 4)
-    actions = policy(obs)
-    assert actions.shape == (5, 1) and actions.dtype == torch.float32
-    assert torch.equal(actions, policy(obs))
-    expected, _ = PPO.load(tmp_path / MODEL_FILE, device="cpu").predict(obs.numpy(), deterministic=True)
-    np.testing.assert_allclose(actions.numpy(), np.clip(expected, -1, 1), rtol=1e-6)
-    with pytest.raises(FileNotFoundError, match="no SB3 model"):
-        load_sb3_policy(tmp_path / "missing.zip")
-
-
-def test_train_and_play_cli_with_sb3(tmp_path):
-    """train.py --algo sb3 on the tutorial preset writes a run that play.py --algo sb3 finds and plays."""
-    repo = Path(__file__).resolve().parent.parent
-
-    def run(script, *args):
-        result = subprocess.run([sys.executable, str(repo / script), *args], cwd=repo, capture_output=True,
-                                text=True, timeout=300)
-        assert result.returncode == 0, result.stdout + result.stderr
-        return result.stdout
-
-    quick = ["--set", "sb3.total_timesteps=1000", "--set", "sb3.n_steps=500", "--set", "sb3.batch_size=500"]
-    out = run("train.py", "--algo", "sb3", "--config", "configs/tutorial.yaml", "--log-dir", str(tmp_path), *quick)
-    (run_dir,) = (tmp_path / "sb3" / "cartpole").iterdir()
-    assert "completed: 1,000 env steps" in out
-    assert (run_dir / MODEL_FILE).is_file() and list(run_dir.glob("events.out.tfevents.*"))
-    saved = yaml.safe_load((run_dir / "config.yaml").read_text())
-    assert saved["algo"] == "sb3" and saved["env"]["sim"]["decimation"] == 1 and saved["env"]["num_envs"] == 1
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["algo"] == "sb3" and summary["env_steps"] == 1000 and summary["solved"] is None
-
-    out = run("play.py", "--algo", "sb3", "--headless", "--log-dir", str(tmp_path), "--num-envs", "4", "--steps", "50")
-    assert f"policy: {run_dir / MODEL_FILE}" in out
-    result = json.loads((run_dir / "play" / "result.json").read_text())
-    assert result["num_envs"] == 4 and result["steps"] == 50
-    assert Image.open(run_dir / "play" / "cartpole.gif").n_frames > 1
-    assert Usd.Stage.Open(str(run_dir / "play" / "cartpole.usda"))

@@ -5,22 +5,25 @@ import importlib.util
 import pytest
 from pxr import Usd, UsdGeom, UsdPhysics
 
-from cartpole_warp.config import DEFAULT_STAGE, REPO_ROOT
+from cartpole_warp.config import data_path
+
+STAGE = data_path("usd", "cartpole.usda")
 
 
-def load_writer():
-    spec = importlib.util.spec_from_file_location("make_cartpole", REPO_ROOT / "usd" / "make_cartpole.py")
+def load_writer(repo):
+    spec = importlib.util.spec_from_file_location("make_cartpole", repo / "usd" / "make_cartpole.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
-def test_committed_stage_matches_the_script():
-    assert DEFAULT_STAGE.read_text() == load_writer().stage_text(), "run: python usd/make_cartpole.py"
+def test_committed_stage_matches_the_script(repo):
+    assert repo / "usd" / "cartpole.usda" == STAGE, "a checkout uses the stage at the top of the repository"
+    assert STAGE.read_text() == load_writer(repo).stage_text(), "run: python usd/make_cartpole.py"
 
 
 def test_stage_schemas_and_facts():
-    stage = Usd.Stage.Open(str(DEFAULT_STAGE))
+    stage = Usd.Stage.Open(str(STAGE))
     assert UsdGeom.GetStageUpAxis(stage) == "Z" and UsdGeom.GetStageMetersPerUnit(stage) == 1.0
     assert stage.GetDefaultPrim().HasAPI(UsdPhysics.ArticulationRootAPI)
     cart_joint = UsdPhysics.PrismaticJoint(stage.GetPrimAtPath("/cartpole/cartJoint"))
@@ -31,7 +34,8 @@ def test_stage_schemas_and_facts():
     assert tuple(pole_joint.GetLocalPos0Attr().Get()) == pytest.approx((0.12, 0.0, 0.0))
     fixed = UsdPhysics.FixedJoint(stage.GetPrimAtPath("/cartpole/railJoint"))
     assert fixed and fixed.GetBody1Rel().GetTargets()[0] == "/cartpole/rail"
-    for body, mass, size in [("cart", 1.0, (0.2, 0.25, 0.2)), ("pole", 1.0, (0.04, 0.06, 1.0)), ("rail", 1.0, (0.03, 8, 0.03))]:
+    bodies = [("cart", 1.0, (0.2, 0.25, 0.2)), ("pole", 1.0, (0.04, 0.06, 1.0)), ("rail", 1.0, (0.03, 8, 0.03))]
+    for body, mass, size in bodies:
         prim = stage.GetPrimAtPath(f"/cartpole/{body}")
         assert prim.HasAPI(UsdPhysics.RigidBodyAPI)
         assert UsdPhysics.MassAPI(prim).GetMassAttr().Get() == mass
@@ -42,6 +46,7 @@ def test_stage_schemas_and_facts():
         assert tuple(scale) == pytest.approx(size)
         x, y, z = size
         inertia = UsdPhysics.MassAPI(prim).GetDiagonalInertiaAttr().Get()
-        assert tuple(inertia) == pytest.approx((mass * (y*y + z*z) / 12, mass * (x*x + z*z) / 12, mass * (x*x + y*y) / 12), rel=1e-5)
+        box = (mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12)
+        assert tuple(inertia) == pytest.approx(box, rel=1e-5)
     pole_com = UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/pole")).GetCenterOfMassAttr().Get()
     assert tuple(pole_com) == pytest.approx((0.0, 0.0, 0.47))

@@ -5,8 +5,6 @@ import math
 import numpy as np
 import torch
 
-from conftest import make, random_actions
-
 # From the tutorial (cartpole_task.py): _reset_dist = 3.0, _max_push_effort = 400.0
 RESET_DIST = 3.0
 
@@ -35,7 +33,7 @@ def sample_states(num_envs, seed):
     return (torch.rand((num_envs, 4), generator=gen) * 2 - 1) * scale
 
 
-def test_reward_and_termination_equal_the_tutorial_formulas():
+def test_reward_and_termination_equal_the_tutorial_formulas(make, random_actions):
     n = 4096
     for preset in ("default", "tutorial"):
         env = make(n, preset=preset)
@@ -49,7 +47,7 @@ def test_reward_and_termination_equal_the_tutorial_formulas():
         assert not truncated.any()
 
 
-def test_observation_order_matches_the_physics():
+def test_observation_order_matches_the_physics(make):
     """cart_vel is the derivative of cart_pos and pole_vel that of pole_angle (observation order)."""
     env = make(8, task={"reset_dist_m": 100.0, "max_pole_angle_rad": 100.0})
     states = torch.tensor([[0.1 * i, 0.5, 0.05 * i, -0.3] for i in range(8)])
@@ -61,7 +59,7 @@ def test_observation_order_matches_the_physics():
     torch.testing.assert_close((obs2[:, 2] - obs1[:, 2]) / dt, (obs1[:, 3] + obs2[:, 3]) / 2, atol=0.05, rtol=0.05)
 
 
-def test_resets_fall_in_the_tutorial_ranges_and_cover_them():
+def test_resets_fall_in_the_tutorial_ranges_and_cover_them(make):
     env = make(4096, seed=3)
     samples = torch.cat([env.reset()[0].cpu() for _ in range(4)])
     # tutorial reset(): cart 1.0*(1-2u), pole 0.125*pi*(1-2u), cart_vel 0.5*(1-2u), pole_vel 0.25*pi*(1-2u)

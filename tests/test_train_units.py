@@ -1,8 +1,14 @@
-"""Fast checks of the training plumbing: config precedence, the solved rule, the rsl-rl adapter, atomic writes,
-run-folder lookup and the learning-curve PNG."""
+"""Fast checks of the training plumbing: config precedence and errors, --help, the rsl-rl config, the solved rule,
+episode statistics, the rsl-rl adapter, atomic writes, run-folder lookup and the learning-curve PNG."""
 
+import ast
+import contextlib
+import dataclasses
+import inspect
+import io
 import math
 import os
+import typing
 
 import pytest
 import torch
@@ -10,54 +16,108 @@ from PIL import Image
 from tensordict import TensorDict
 
 import cartpole_warp
-from cartpole_warp.cli import apply_sets, config_reference
-from cartpole_warp.config import ConfigError, TrainConfig, train_config
-from cartpole_warp.metrics import EpisodeStats, is_solved
-from cartpole_warp.render import plot_learning_curve
-from cartpole_warp.rsl_rl_env import RslRlVecEnv
-from cartpole_warp.runs import (RunError, atomic_write, create_run_dir, latest_checkpoint, latest_run, load_config,
-                                save_config)
-from cartpole_warp.trainer import runner_cfg
+from cartpole_warp.config import ConfigError
+from cartpole_warp.rl.config import RunnerConfig, TrainConfig, train_config
+from cartpole_warp.rl.curve import plot_learning_curve
+from cartpole_warp.rl.metrics import EpisodeStats, is_solved
+from cartpole_warp.rl.runs import (
+    RunError,
+    atomic_write,
+    latest_checkpoint,
+    latest_run,
+    load_config,
+    new_run_dir,
+    save_config,
+)
+from cartpole_warp.train import resolve
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
-def test_preset_then_set_overrides_the_dataclass_defaults(tmp_path):
+def test_preset_then_flags_override_the_dataclass_defaults(tmp_path):
     preset = tmp_path / "p.yaml"
-    preset.write_text("env:\n  num_envs: 64\nppo:\n  entropy_coef: 0.02\ntrain:\n  max_iterations: 7\n")
+    preset.write_text("env:\n  num_envs: 64\nagent:\n  max_iterations: 7\n  algorithm:\n    entropy_coef: 0.02\n")
     cfg = train_config(str(preset))
-    assert (cfg.env.num_envs, cfg.ppo.entropy_coef, cfg.train.max_iterations) == (64, 0.02, 7)
-    apply_sets(cfg, ["ppo.entropy_coef=0.03", "policy.hidden_dims=[16, 8]", "env.task.episode_length_s=null"])
-    assert cfg.ppo.entropy_coef == 0.03 and cfg.policy.hidden_dims == [16, 8] and cfg.env.task.episode_length_s is None
-    assert TrainConfig().ppo.entropy_coef == 0.005
+    assert (cfg.env.num_envs, cfg.agent.algorithm.entropy_coef, cfg.agent.max_iterations) == (64, 0.02, 7)
+    cfg, run_dir, checkpoint = resolve(["--config", str(preset), "--agent.algorithm.entropy-coef", "0.03",
+                                        "--agent.actor.hidden-dims", "16", "8", "--env.task.episode-length-s", "None",
+                                        "--log-dir", str(tmp_path), "--run-name", "x"])
+    assert cfg.agent.algorithm.entropy_coef == 0.03 and cfg.agent.actor.hidden_dims == [16, 8]
+    assert cfg.env.task.episode_length_s is None and cfg.env.num_envs == 64 and cfg.agent.max_iterations == 7
+    assert run_dir.parent == tmp_path / "rsl_rl" / "cartpole" and run_dir.name.endswith("_x") and not run_dir.exists()
+    assert checkpoint is None
+    assert TrainConfig().agent.algorithm.entropy_coef == 0.005
 
 
-@pytest.mark.parametrize("assignment, message", [
-    ("ppo.entropy=0.1", "unknown config key 'ppo.entropy'"),
-    ("train.max_iterations=many", "expected int"),
-    ("no_equals_sign", "KEY=VALUE"),
+@pytest.mark.parametrize("yaml_text, message", [
+    ("agent:\n  algorithm:\n    entropy: 0.1\n", "unknown config key 'agent.algorithm.entropy'; valid keys here: "),
+    ("agent:\n  max_iterations: many\n", "agent.max_iterations: Input should be a valid integer"),
+    ("env:\n  sim:\n    solver: bullet\n", "env.sim.solver: Input should be 'featherstone' or 'mujoco'"),
+    ("no_such_section: 1\n", "unknown config key 'no_such_section'"),
+    ("- a list\n", "expected a mapping at the top level"),
 ])
-def test_bad_settings_name_the_key(assignment, message):
+def test_bad_presets_name_the_key(tmp_path, yaml_text, message):
+    preset = tmp_path / "bad.yaml"
+    preset.write_text(yaml_text)
     with pytest.raises(ConfigError, match=message):
-        apply_sets(TrainConfig(), [assignment])
+        train_config(str(preset))
 
 
 def test_validate_rejects_mini_batches_that_do_not_divide_the_rollout():
     cfg = TrainConfig()
-    cfg.env.num_envs, cfg.train.num_steps_per_env, cfg.ppo.num_mini_batches = 3, 3, 4
+    cfg.env.num_envs, cfg.agent.num_steps_per_env, cfg.agent.algorithm.num_mini_batches = 3, 3, 4
     with pytest.raises(ConfigError, match="num_mini_batches"):
         cfg.validate()
 
 
-def test_every_config_field_is_documented_for_help():
-    lines = config_reference()
-    assert any(line.startswith("  ppo.entropy_coef (float, default 0.005): Weight") for line in lines)
-    assert all(line.split("): ", 1)[1].strip() for line in lines), "a config field has no docstring"
+def field_docs(cls) -> dict[str, str]:
+    """The docstring under each field of a dataclass (read here with ast, independently of tyro)."""
+    docs = {}
+    for klass in reversed(cls.__mro__[:-1]):
+        body = ast.parse(inspect.getsource(klass)).body[0].body
+        for node, after in zip(body, body[1:]):
+            documented = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+            if isinstance(node, ast.AnnAssign) and documented:
+                docs[node.target.id] = " ".join(after.value.value.split())
+    return docs
 
 
-def test_runner_cfg_maps_the_sections_onto_rsl_rl_keys():
-    cfg = runner_cfg(TrainConfig())
+def leaf_fields(cls, prefix=""):
+    """(flag, docstring) of every non-dataclass field of a config tree."""
+    hints, docs = typing.get_type_hints(cls), field_docs(cls)
+    for f in dataclasses.fields(cls):
+        kind = hints[f.name]
+        if dataclasses.is_dataclass(kind):
+            yield from leaf_fields(kind, f"{prefix}{f.name}.")
+        else:
+            yield f"--{prefix}{f.name}".replace("_", "-"), docs.get(f.name)
+
+
+def test_help_lists_every_config_field_with_its_docstring():
+    help_text = io.StringIO()
+    with contextlib.redirect_stdout(help_text), pytest.raises(SystemExit) as exit_code:
+        resolve(["--help"])
+    assert exit_code.value.code == 0
+    text = " ".join(help_text.getvalue().replace("│", " ").split())
+    fields = list(leaf_fields(TrainConfig))
+    assert len(fields) > 40
+    for flag, doc in fields:
+        assert doc, f"{flag} has no docstring"
+        assert flag in text, flag
+        assert " ".join(doc.split()[:4]) in text, f"{flag}: its docstring is not in --help"
+    for flag in ("--num-envs", "--device", "--seed", "--max-iterations", "--run-name", "--log-dir", "--config",
+                 "--resume", "--checkpoint", "--logger", "--stop-when-solved"):
+        assert flag in text, flag
+
+
+def test_runner_config_is_rsl_rl_train_cfg():
+    cfg = RunnerConfig().to_rsl_rl()
     assert cfg["algorithm"]["class_name"] == "PPO" and cfg["algorithm"]["entropy_coef"] == 0.005
-    assert cfg["actor"]["hidden_dims"] == [32, 32] and cfg["actor"]["distribution_cfg"]["init_std"] == 1.0
+    assert cfg["actor"]["class_name"] == cfg["critic"]["class_name"] == "MLPModel"
+    assert cfg["actor"]["hidden_dims"] == [32, 32] and cfg["actor"]["distribution_cfg"] == {
+        "class_name": "GaussianDistribution", "init_std": 1.0}
     assert cfg["num_steps_per_env"] == 16 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
+    assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
+    assert RunnerConfig(logger="none").to_rsl_rl()["logger"]["class_name"].endswith(":NullLogWriter")
 
 
 def test_solved_needs_both_length_and_reward_per_step():
@@ -67,13 +127,14 @@ def test_solved_needs_both_length_and_reward_per_step():
     assert not is_solved(None, None, 600)
 
 
-def test_episode_stats_average_per_episode():
+def test_episode_stats_average_the_ended_episodes():
     stats = EpisodeStats()
-    stats.add(torch.tensor([10.0, -2.0]), torch.tensor([10.0, 1.0]), torch.tensor([True, False]))
+    ended = torch.tensor([True, True, False])
+    stats.add(ended, torch.tensor([10.0, -2.0, 99.0]), torch.tensor([10, 1, 5]), torch.tensor([True, False, True]))
     summary = stats.pop()
     assert summary.episodes == 2 and summary.mean_return == 4.0 and summary.mean_length == 5.5
     assert math.isclose(summary.mean_reward_per_step, (1.0 - 2.0) / 2) and summary.time_limit_fraction == 0.5
-    assert stats.summary().episodes == 0
+    assert stats.summary().episodes == 0 and stats.summary().mean_return is None
 
 
 def test_adapter_follows_the_rsl_rl_vecenv_contract():
@@ -84,12 +145,12 @@ def test_adapter_follows_the_rsl_rl_vecenv_contract():
     env.episode_length_buf = torch.full((8,), 4, dtype=torch.int32)
     assert env.env.episode_length_buf.tolist() == [4] * 8
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
-    assert rewards.shape == (8,) and dones.shape == (8,) and not extras["time_outs"].any()
+    assert rewards.shape == (8,) and dones.shape == (8,) and dones.dtype == torch.int64
+    assert not extras["time_outs"].any()
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
     assert dones.tolist() == [1] * 8 and extras["time_outs"].all(), "episodes 4 steps in end at the 6-step limit"
-    assert extras["episode"]["length"].tolist() == [6.0] * 8 and extras["episode"]["time_limit_fraction"].min() == 1
+    assert extras["episode_length"].tolist() == [6] * 8 and extras["final_obs"].shape == (8, 4)
     assert obs["policy"].shape == (8, 4) and env.episode_length_buf.tolist() == [0] * 8
-    assert env.episode_stats.pop().episodes == 8
 
 
 def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
@@ -108,9 +169,11 @@ def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
 
 def test_run_folders_are_found_newest_first(tmp_path):
     with pytest.raises(RunError, match="no checkpoint under .*run train.py first or pass --checkpoint"):
-        latest_run(tmp_path, "rsl_rl", "cartpole")
-    old = create_run_dir(tmp_path, "rsl_rl", "cartpole", "old")
-    new = create_run_dir(tmp_path, "rsl_rl", "cartpole", "old")
+        latest_run(tmp_path, "cartpole")
+    old = new_run_dir(tmp_path, "cartpole", "old")
+    old.mkdir(parents=True)
+    new = new_run_dir(tmp_path, "cartpole", "old")
+    new.mkdir()
     assert old != new and new.parent == tmp_path / "rsl_rl" / "cartpole"
     cfg = TrainConfig()
     cfg.env.num_envs = 32
@@ -118,16 +181,17 @@ def test_run_folders_are_found_newest_first(tmp_path):
         save_config(run, cfg)
         for it in (2, 10):
             (run / f"model_{it}.pt").write_bytes(b"x")
-    assert latest_run(tmp_path, "rsl_rl", "cartpole") == new
+    assert latest_run(tmp_path, "cartpole") == new
     assert latest_checkpoint(new).name == "model_10.pt"
     assert load_config(new).env.num_envs == 32
     with pytest.raises(ConfigError):
-        create_run_dir(tmp_path, "rsl_rl", "cartpole", "bad/name")
+        new_run_dir(tmp_path, "cartpole", "bad/name")
 
 
 def test_learning_curve_png_decodes(tmp_path):
-    history = [{"iteration": i, "reward": i / 10, "length": None if i == 0 else 3.0 * i} for i in range(10)]
-    path = plot_learning_curve(tmp_path / "curve.png", history, [("reward", "reward", 0.9), ("length", "length", None)])
+    history = [{"iteration": i, "episodes": i, "mean_reward_per_step": i / 10, "mean_episode_length": 60.0 * i}
+               for i in range(10)]
+    path = plot_learning_curve(tmp_path / "curve.png", history, env_dt_s=1 / 60, max_episode_length=600)
     image = Image.open(path)
     image.load()
-    assert image.size == (900, 520) and len(image.getcolors(maxcolors=100000)) > 3
+    assert image.size == (800, 600) and len(image.getcolors(maxcolors=100000)) > 50

@@ -1,4 +1,4 @@
-"""Episode statistics and the one definition of "solved"."""
+"""Episode statistics, summed on the device, and the one definition of "solved"."""
 
 from __future__ import annotations
 
@@ -35,35 +35,29 @@ class EpisodeSummary:
 
 
 class EpisodeStats:
-    """Accumulates finished episodes (return, length, reached time limit) until ``pop``."""
+    """Sums over finished episodes, kept on the device: ``add`` never waits for the device, ``pop`` reads once."""
 
-    def __init__(self):
-        self._returns: list[torch.Tensor] = []
-        self._lengths: list[torch.Tensor] = []
-        self._timeouts: list[torch.Tensor] = []
+    def __init__(self, device: str | torch.device = "cpu"):
+        self._sums = torch.zeros(5, dtype=torch.float64, device=device)
+        """episodes, returns, lengths, rewards per step, episodes that reached the time limit."""
 
-    def add(self, returns: torch.Tensor, lengths: torch.Tensor, timed_out: torch.Tensor):
-        """Record finished episodes: returns, lengths (env steps) and whether each reached the time limit (1-D)."""
-        self._returns.append(returns.float().cpu())
-        self._lengths.append(lengths.float().cpu())
-        self._timeouts.append(timed_out.float().cpu())
+    def add(self, ended: torch.Tensor, returns: torch.Tensor, lengths: torch.Tensor, timed_out: torch.Tensor):
+        """Count the episodes where ``ended`` (N,) bool: their returns, lengths (env steps) and whether they reached
+        the time limit; the values where ``ended`` is False are ignored."""
+        lengths, returns = lengths.to(torch.float64), returns.to(torch.float64)
+        values = torch.stack((torch.ones_like(returns), returns, lengths, returns / lengths.clamp(min=1),
+                              timed_out.to(torch.float64)))
+        self._sums += torch.where(ended, values, 0.0).sum(dim=1)
 
     def summary(self) -> EpisodeSummary:
-        """Means over the episodes recorded so far."""
-        returns = torch.cat(self._returns) if self._returns else torch.zeros(0)
-        if returns.numel() == 0:
+        """Means over the episodes counted so far (one read from the device)."""
+        count, returns, lengths, per_step, timed_out = self._sums.tolist()
+        if count == 0:
             return EpisodeSummary(0, None, None, None, None)
-        lengths = torch.cat(self._lengths)
-        return EpisodeSummary(
-            episodes=returns.numel(),
-            mean_return=returns.mean().item(),
-            mean_length=lengths.mean().item(),
-            mean_reward_per_step=(returns / lengths.clamp(min=1)).mean().item(),
-            time_limit_fraction=torch.cat(self._timeouts).mean().item(),
-        )
+        return EpisodeSummary(int(count), returns / count, lengths / count, per_step / count, timed_out / count)
 
     def pop(self) -> EpisodeSummary:
         """The summary so far; then start afresh."""
         result = self.summary()
-        self.__init__()
+        self._sums.zero_()
         return result

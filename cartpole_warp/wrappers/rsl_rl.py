@@ -11,17 +11,16 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from .env import CartpoleEnv
-from .metrics import EpisodeStats
+from ..env import CartpoleEnv
 
 
 class RslRlVecEnv(VecEnv):
-    """Presents a ``CartpoleEnv`` as an rsl-rl ``VecEnv``.
+    """Presents a ``CartpoleEnv`` as an rsl-rl ``VecEnv``, without waiting for the device.
 
     Observations are ``TensorDict({"policy": (N, 4)})``; ``dones`` is terminated | truncated (int64);
-    ``extras["time_outs"]`` marks truncations so PPO bootstraps them; ``extras["episode"]`` carries the finished
-    episodes' ``return``, ``length`` (env steps), ``reward_per_step`` and ``time_limit_fraction`` for rsl-rl's logger.
-    Every finished episode is also added to ``episode_stats`` (pop it once per iteration).
+    ``extras["time_outs"]`` marks truncations so PPO bootstraps them. ``extras`` also carries the env's ``info``
+    (``episode_return``, ``episode_length``, ``end_reason``, ``final_obs``: valid where ``dones``), from which a
+    training loop can keep episode statistics without indexing or a host sync per step.
     """
 
     def __init__(self, env: CartpoleEnv):
@@ -31,7 +30,6 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = env.max_episode_length
         self.device = env.device
         self.cfg = env.cfg
-        self.episode_stats = EpisodeStats()
 
     @property
     def episode_length_buf(self) -> torch.Tensor:
@@ -52,16 +50,7 @@ class RslRlVecEnv(VecEnv):
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """One env step: (obs, rewards (N,), dones (N,), extras)."""
         obs, reward, terminated, truncated, info = self.env.step(actions.to(torch.float32))
-        ended = terminated | truncated
-        extras = {"time_outs": truncated, "episode": {}}
-        if ended.any():
-            returns, lengths = info["episode_return"][ended], info["episode_length"][ended].float()
-            timed_out = truncated[ended].float()
-            extras["episode"] = {
-                "return": returns,
-                "length": lengths,
-                "reward_per_step": returns / lengths.clamp(min=1),
-                "time_limit_fraction": timed_out,
-            }
-            self.episode_stats.add(returns, lengths, timed_out)
-        return self._wrap(obs), reward, ended.long(), extras
+        return self._wrap(obs), reward, (terminated | truncated).long(), {"time_outs": truncated, **info}
+
+    def close(self):
+        self.env.close()

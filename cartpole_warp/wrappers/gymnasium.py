@@ -19,8 +19,8 @@ import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .env import CartpoleEnv, make_env
-from .kernels import END_REASONS
+from ..env import CartpoleEnv, make_env
+from ..kernels import END_REASONS
 
 ENV_IDS = {"cartpole_warp/Cartpole-v0": "default", "cartpole_warp/CartpoleTutorial-v0": "tutorial"}
 """Registered gymnasium ids and the preset each builds. Neither sets ``max_episode_steps``: the env truncates
@@ -51,8 +51,8 @@ def register_envs() -> None:
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
-                entry_point="cartpole_warp.gym_env:CartpoleGymEnv",
-                vector_entry_point="cartpole_warp.gym_env:CartpoleVectorEnv",
+                entry_point="cartpole_warp.wrappers.gymnasium:CartpoleGymEnv",
+                vector_entry_point="cartpole_warp.wrappers.gymnasium:CartpoleVectorEnv",
                 kwargs={"preset": preset},
             )
 

@@ -2,7 +2,7 @@
 
     from stable_baselines3 import PPO
     from cartpole_warp import make_env
-    from cartpole_warp.sb3_env import CartpoleSb3VecEnv
+    from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
 
     venv = CartpoleSb3VecEnv(make_env(num_envs=64, preset="default"))
     PPO("MlpPolicy", venv).learn(100_000)
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from .env import CartpoleEnv
-from .gym_env import action_space, actions_tensor, observation_space
+from ..env import CartpoleEnv
+from .gymnasium import action_space, actions_tensor, observation_space
 
 
 class CartpoleSb3VecEnv(VecEnv):

@@ -1,0 +1,151 @@
+"""Watch a policy on the cartpole: statistics, a GIF and a USD recording (--headless) or Newton's viewer.
+
+    python play.py --headless                    # newest run's latest checkpoint -> <run>/play/
+    python play.py --headless --run DIR          # or --checkpoint FILE
+    python play.py --agent zero --headless       # no checkpoint needed (also: random)
+    python play.py                               # Newton's interactive viewer (needs a display and the viz extra)
+
+The env is rebuilt from the run's saved config.yaml (flags override it); the policy acts deterministically
+(the Gaussian's mean). Also installed as ``python -m cartpole_warp.play``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from .cli import asks_help, clean_errors, parse, peek, quiet_libraries
+from .config import ConfigError, EnvConfig, require
+from .rl.config import TrainConfig, train_config
+from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_checkpoint, latest_run, load_config, write_text
+from .scene import StageError
+
+DEFAULT_PLAY_ENVS = 256
+NO_LIMIT_STEPS = 1000
+Agent = Literal["trained", "zero", "random"]
+
+
+@dataclass
+class PlayArgs:
+    env: EnvConfig
+    agent: Agent = "trained"
+    """trained: a checkpoint's policy; zero: no push; random: uniform in [-1, 1]."""
+    run: Path | None = None
+    """Run folder (default: the newest run under --log-dir)."""
+    checkpoint: Path | None = None
+    """Checkpoint file (default: the run's latest)."""
+    log_dir: str = "logs"
+    """Root folder of all runs (train.py's --log-dir)."""
+    config: str = "default"
+    """Preset of the env for --agent zero|random, or for a checkpoint outside a run folder."""
+    headless: bool = False
+    """No window: print statistics, write <output>/cartpole.gif, cartpole.usda and result.json."""
+    export: bool = False
+    """Write <run>/exported/policy.onnx and policy.pt."""
+    steps: int | None = None
+    """Env steps to run (default: the time limit, or 1000 without one; in the viewer: until its window closes)."""
+    output: Path | None = None
+    """Folder for the GIF, USD and result (default <run>/play, or <log-dir>/play/<agent>)."""
+
+
+def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
+    """(arguments, the run's config with the env flags applied, checkpoint or None)."""
+    first = peek(argv, agent="trained", run=None, checkpoint=None, log_dir="logs", config=None)
+    checkpoint = None
+    if first.agent != "trained" or asks_help(argv):
+        cfg = train_config(first.config or "default")
+    else:
+        if first.checkpoint:
+            checkpoint = Path(first.checkpoint)
+            if not checkpoint.is_file():
+                raise RunError(f"checkpoint {checkpoint} not found")
+        else:
+            checkpoint = latest_checkpoint(Path(first.run) if first.run else latest_run(first.log_dir, "cartpole"))
+        saved = checkpoint.parent / CONFIG_FILE
+        require(not (saved.is_file() and first.config), f"--config conflicts with the run's saved {saved}; "
+                                                         "override its fields with flags instead")
+        cfg = load_config(checkpoint.parent) if saved.is_file() else train_config(first.config or "default")
+    cfg.env.num_envs = DEFAULT_PLAY_ENVS
+    args = parse(PlayArgs, PlayArgs(env=cfg.env, config=first.config or "default"), argv, __doc__)
+    require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
+            f"--agent {args.agent} takes no --run, --checkpoint or --export")
+    require(args.steps is None or args.steps >= 1, f"--steps must be >= 1, got {args.steps}")
+    cfg.env = args.env
+    return args, cfg.validate(), checkpoint
+
+
+def main(argv: list[str] | None = None) -> int:
+    quiet_libraries()
+    from .viz.viewer import ViewerUnavailable
+
+    try:
+        return play(sys.argv[1:] if argv is None else argv)
+    except ViewerUnavailable as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+
+
+def play(argv: list[str]) -> int:
+    """play.py's work; ViewerUnavailable when the viewer is asked for and cannot open."""
+    with clean_errors(ConfigError, RunError, StageError):
+        args, cfg, checkpoint = resolve(argv)
+        if not args.headless:
+            from .viz.viewer import check_viewer
+
+            check_viewer()
+        import torch
+
+        from .env import CartpoleEnv
+        from .rl.rollout import random_policy, rollout, zero_policy
+
+        if cfg.torch_threads:
+            torch.set_num_threads(cfg.torch_threads)
+        env = CartpoleEnv(cfg.env)
+        if checkpoint is not None:
+            from .rl.runner import CartpoleRunner
+            from .wrappers.rsl_rl import RslRlVecEnv
+
+            runner = CartpoleRunner(RslRlVecEnv(env), cfg, None)
+            runner.load(str(checkpoint), load_cfg={"actor": True})
+            policy = runner.policy()
+            print(f"policy: {checkpoint}")
+            if args.export:
+                for path in runner.export(checkpoint.parent / EXPORT_DIR):
+                    print(f"exported {path}")
+        else:
+            policy = zero_policy if args.agent == "zero" else random_policy(cfg.env.seed)
+            print(f"policy: {args.agent}")
+        if not args.headless:
+            from .viz.viewer import view_interactively
+
+            steps = view_interactively(env, policy, max_steps=args.steps)
+            print(f"viewer closed after {steps} env steps")
+            return 0
+        from .viz.record import Recorder
+
+        has_limit = cfg.env.task.episode_length_s is not None
+        steps = args.steps or (env.max_episode_length if has_limit else NO_LIMIT_STEPS)
+        output = args.output or (checkpoint.parent if checkpoint else Path(args.log_dir)) / PLAY_DIR
+        if not (args.output or checkpoint):
+            output = output / args.agent
+        recorder = Recorder(env.scene, env.env_dt, output / "cartpole.gif", output / "cartpole.usda")
+        stats = rollout(env, policy, steps, on_step=recorder)
+        gif, usd = recorder.close()
+        limit = (f"the {cfg.env.task.episode_length_s:g} s time limit" if has_limit and steps >= env.max_episode_length
+                 else f"the {steps}-step cap")
+        print(f"{stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
+              f"mean return {stats.mean_return:.2f}, mean length {stats.mean_length:.1f} steps "
+              f"({stats.mean_length * env.env_dt:.2f} s), reached {limit}: {stats.time_limit_fraction:.1%}")
+        record = {"agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None, "num_envs": env.num_envs,
+                  "steps": steps, "episodes": stats.episodes, "mean_return": stats.mean_return,
+                  "mean_episode_length": stats.mean_length, "time_limit_fraction": stats.time_limit_fraction}
+        result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
+        print(f"wrote {gif}, {usd} (open with usdview) and {result_file}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

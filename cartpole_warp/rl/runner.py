@@ -1,0 +1,234 @@
+"""``CartpoleRunner``: rsl-rl's ``OnPolicyRunner`` with the training loop reporting each iteration.
+
+    runner = CartpoleRunner(RslRlVecEnv(CartpoleEnv(cfg.env)), cfg, log_dir)
+    runner.learn(cfg.agent.max_iterations)     # runner.request_stop() ends it after the current iteration
+
+It overrides, openly, what rsl-rl offers no hook for: ``learn`` (rsl-rl's rollout / returns / update loop, then
+episode statistics summed on the device, the progress, the "solved" decision, the metrics, one console line and
+stop requests after each iteration), ``save`` / ``load`` (atomic checkpoints that carry the progress; clear errors),
+and it adds ``policy`` and ``export``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import logging
+import os
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import onnx
+import torch
+from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.utils.log_writer import LogWriter
+from tensordict import TensorDict
+
+from ..wrappers.rsl_rl import RslRlVecEnv
+from .config import TrainConfig
+from .metrics import EpisodeStats, EpisodeSummary, is_solved
+from .rollout import Policy
+from .runs import Progress, RunError, atomic_write
+
+
+class NullLogWriter(LogWriter):
+    """Metrics writer for ``agent.logger: none``: checkpoints and summary are still written, metrics are not."""
+
+    def __init__(self, log_dir: str):
+        self.log_dir = log_dir
+
+    def add_scalar(self, tag: str, scalar_value: float, global_step: int) -> None:
+        """Drop the metric."""
+
+
+def format_duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 60}m{seconds % 60:02d}s" if seconds >= 60 else f"{seconds}s"
+
+
+class CartpoleRunner(OnPolicyRunner):
+    """OnPolicyRunner for one training run: ``log_dir`` None writes nothing (no metrics, no checkpoints)."""
+
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None):
+        super().__init__(env, cfg.agent.to_rsl_rl(), str(log_dir) if log_dir is not None else None, env.device)
+        self.train_cfg = cfg
+        self.progress = Progress()
+        self.episodes = EpisodeStats(env.device)
+        self.stop_reason: str | None = None
+        self._stop_requested: str | None = None
+        self.add_git_repo_to_log(__file__)
+
+    @property
+    def run_dir(self) -> Path | None:
+        return Path(self.logger.log_dir) if self.logger.log_dir is not None else None
+
+    def request_stop(self, reason: str = "interrupted"):
+        """End ``learn`` after the iteration in progress (which is saved)."""
+        self._stop_requested = reason
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+        """rsl-rl's loop for ``num_learning_iterations`` iterations, ending early on a stop request or, with
+        ``stop_when_solved``, once solved. Non-finite states never reach PPO (the env resets them), so there is no
+        per-step NaN check; episode statistics stay on the device until the iteration ends."""
+        if init_at_random_ep_len:
+            self.env.episode_length_buf = torch.randint_like(self.env.episode_length_buf,
+                                                             high=int(self.env.max_episode_length))
+        obs = self.env.get_observations().to(self.device)
+        self.alg.train_mode()
+        if self.is_distributed:
+            self.alg.broadcast_parameters()
+        self.logger.init_logging_writer()
+        self._first_iteration = self.current_learning_iteration
+        self._end_iteration = self._first_iteration + num_learning_iterations
+        self._start = self._tick = time.perf_counter()
+        rsl_rl_console = self.train_cfg.console == "rsl_rl"
+        for it in range(self._first_iteration, self._end_iteration):
+            start = time.perf_counter()
+            with torch.inference_mode():
+                for _ in range(self.cfg["num_steps_per_env"]):
+                    actions = self.alg.act(obs)
+                    obs, rewards, dones, extras = self.env.step(actions.to(self.env.device))
+                    obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
+                    self.alg.process_env_step(obs, rewards, dones, extras)
+                    self.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"],
+                                      extras["time_outs"])
+                    if rsl_rl_console:
+                        self.logger.process_env_step(rewards, dones, extras)
+                collected = time.perf_counter()
+                self.alg.compute_returns(obs)
+            loss_dict = self.alg.update()
+            self.current_learning_iteration = it
+            self._end_of_iteration(it, collected - start, time.perf_counter() - collected, loss_dict)
+            if self.stop_reason is not None:
+                break
+            if self.run_dir is not None and it % self.cfg["save_interval"] == 0:
+                self.save(str(self.run_dir / f"model_{it}.pt"))
+        if self.run_dir is not None:
+            self.save(str(self.run_dir / f"model_{self.current_learning_iteration}.pt"))
+            self.logger.stop_logging_writer()
+
+    def _end_of_iteration(self, it: int, collect_time: float, learn_time: float, loss_dict: dict):
+        now = time.perf_counter()
+        iteration_time, self._tick = now - self._tick, now
+        steps = self.env.num_envs * self.cfg["num_steps_per_env"]
+        stats = self.episodes.pop()
+        solved = is_solved(stats.mean_length, stats.mean_reward_per_step, self.env.max_episode_length)
+        p = self.progress
+        p.iterations, p.env_steps, p.train_time_s = it + 1, p.env_steps + steps, p.train_time_s + iteration_time
+        p.history.append({"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
+                          **_episode_means(stats), "env_steps_per_s": steps / iteration_time, "solved": solved})
+        if solved and p.solved_at is None:
+            p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3)}
+        if self.train_cfg.console == "rsl_rl":
+            self.logger.log(it=it, start_it=self._first_iteration, total_it=self._end_iteration,
+                            collect_time=collect_time, learn_time=learn_time, loss_dict=loss_dict,
+                            learning_rate=self.alg.learning_rate, action_std=self.alg.get_policy().output_std,
+                            rnd_weight=None)
+        else:
+            self._write_metrics(it, stats, loss_dict, steps / iteration_time, collect_time, learn_time)
+            print(self._progress_line(it, stats, steps / iteration_time, solved, now), flush=True)
+        if self._stop_requested:
+            self.stop_reason = self._stop_requested
+        elif solved and self.train_cfg.stop_when_solved:
+            self.stop_reason = "solved"
+
+    def _write_metrics(self, it: int, stats: EpisodeSummary, loss_dict: dict, steps_per_s: float,
+                       collect_time: float, learn_time: float):
+        writer = self.logger.writer
+        if writer is None:
+            return
+        scalars = {f"Loss/{name}": value for name, value in loss_dict.items()}
+        scalars.update({"Loss/learning_rate": self.alg.learning_rate,
+                        "Policy/mean_std": self.alg.get_policy().output_std.mean().item(),
+                        "Perf/total_fps": steps_per_s, "Perf/collection_time": collect_time,
+                        "Perf/learning_time": learn_time})
+        if stats.episodes:
+            scalars.update({"Train/mean_reward": stats.mean_return, "Train/mean_episode_length": stats.mean_length,
+                            "Episode/reward_per_step": stats.mean_reward_per_step,
+                            "Episode/time_limit_fraction": stats.time_limit_fraction})
+        for tag, value in scalars.items():
+            writer.add_scalar(tag, value, it)
+
+    def _progress_line(self, it: int, stats: EpisodeSummary, steps_per_s: float, solved: bool, now: float) -> str:
+        done = it + 1 - self._first_iteration
+        eta_s = (now - self._start) / done * (self._end_iteration - it - 1)
+        limit = self.env.max_episode_length
+        if stats.episodes:
+            dt = self.train_cfg.env.sim.env_dt
+            episodes = (f"reward/step {stats.mean_reward_per_step:6.3f} | ep len {stats.mean_length * dt:5.2f} s "
+                        f"({stats.mean_length:5.0f}/{limit}) | {stats.episodes:5d} ep")
+        else:
+            episodes = "no episode finished this iteration".ljust(60)
+        width = len(str(self._end_iteration))
+        return (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
+                f" | ETA {format_duration(eta_s)}{' | SOLVED' if solved else ''}")
+
+    def save(self, path: str, infos: dict | None = None) -> None:
+        """Write the models, optimizer, iteration and progress to ``path`` atomically."""
+        saved = self.alg.save()
+        saved["iter"] = self.current_learning_iteration
+        saved["infos"] = infos if infos is not None else dataclasses.asdict(self.progress)
+        atomic_write(Path(path), lambda tmp: torch.save(saved, tmp))
+        self.logger.save_model(path, self.current_learning_iteration)
+
+    def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
+             map_location: str | None = None) -> dict:
+        """Load a checkpoint (RunError naming the file if it is unreadable or does not fit) to continue after its
+        iteration; return its progress."""
+        try:
+            loaded = torch.load(path, weights_only=False, map_location=map_location or self.device)
+        except Exception as err:  # torch.load raises many types for truncated or foreign files
+            raise RunError(f"cannot read checkpoint {path}: {type(err).__name__}: {err}") from None
+        if not isinstance(loaded, dict) or "actor_state_dict" not in loaded or "iter" not in loaded:
+            raise RunError(f"{path} is not an rsl-rl checkpoint (no actor_state_dict / iter)")
+        try:
+            self.alg.load(loaded, load_cfg, strict)
+        except (RuntimeError, KeyError, ValueError) as err:
+            raise RunError(f"checkpoint {path} does not match the configured networks "
+                           f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
+        if load_cfg is None or load_cfg.get("iteration"):
+            self.current_learning_iteration = loaded["iter"] + 1
+        infos = loaded.get("infos") or {}
+        self.progress = Progress(**{f.name: infos[f.name] for f in dataclasses.fields(Progress) if f.name in infos})
+        return infos
+
+    def policy(self) -> Policy:
+        """The deterministic policy (the Gaussian's mean)."""
+        actor = self.get_inference_policy(self.device)
+
+        def act(obs: torch.Tensor) -> torch.Tensor:
+            return actor(TensorDict({"policy": obs}, batch_size=[obs.shape[0]]))
+
+        return act
+
+    def export(self, out_dir: Path) -> list[Path]:
+        """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' (N, 4), output
+        'actions' (N, 1)) and TorchScript ``policy.pt`` into ``out_dir``. torch's ONNX exporter reports its progress
+        on stdout and in warnings; that report is shown only if the export fails."""
+        out_dir = Path(out_dir)
+        report = io.StringIO()
+        onnx_logger = logging.getLogger("torch.onnx")
+        level = onnx_logger.level
+        onnx_logger.setLevel(logging.ERROR)
+        try:
+            with contextlib.redirect_stdout(report), contextlib.redirect_stderr(report), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                with tempfile.TemporaryDirectory() as scratch:
+                    self.export_policy_to_onnx(scratch, "policy.onnx")
+                    model = onnx.load(os.path.join(scratch, "policy.onnx"))
+                atomic_write(out_dir / "policy.onnx", lambda tmp: onnx.save_model(model, tmp))
+                atomic_write(out_dir / "policy.pt",
+                             lambda tmp: self.export_policy_to_jit(str(Path(tmp).parent), Path(tmp).name))
+        except Exception as err:
+            raise RuntimeError(f"policy export failed: {err}\n{report.getvalue()}") from err
+        finally:
+            onnx_logger.setLevel(level)
+        return [out_dir / "policy.onnx", out_dir / "policy.pt"]
+
+
+def _episode_means(stats: EpisodeSummary) -> dict:
+    return {"episodes": stats.episodes, "mean_return": stats.mean_return, "mean_episode_length": stats.mean_length,
+            "mean_reward_per_step": stats.mean_reward_per_step, "time_limit_fraction": stats.time_limit_fraction}

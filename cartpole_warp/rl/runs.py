@@ -1,0 +1,172 @@
+"""Run folders: layout, resolved config, atomic writes, checkpoints, ``summary.json``.
+
+A run lives in ``<log_dir>/rsl_rl/<experiment>/<timestamp>[_<run_name>]/`` and holds ``config.yaml`` (the resolved
+``TrainConfig``; play.py rebuilds the env from it), ``model_<iteration>.pt`` checkpoints, ``summary.json``
+(``RunSummary``), ``learning_curve.png``, ``exported/policy.onnx`` + ``exported/policy.pt`` and the logger's event
+files; ``play/`` gets play.py's pictures and result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime
+import importlib.metadata
+import json
+import os
+import platform
+import re
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import yaml
+
+from ..config import ConfigError, from_dict
+from .config import TrainConfig
+
+CONFIG_FILE = "config.yaml"
+SUMMARY_FILE = "summary.json"
+CURVE_FILE = "learning_curve.png"
+EXPORT_DIR = "exported"
+PLAY_DIR = "play"
+TRAINER_DIR = "rsl_rl"
+"""Folder under ``log_dir`` that holds the experiments (Isaac Lab's layout: logs/rsl_rl/<experiment>)."""
+_CHECKPOINT = re.compile(r"^model_(\d+)\.pt$")
+
+
+class RunError(ValueError):
+    """A run folder, checkpoint or config is missing or unusable; the message names the path."""
+
+
+def experiment_dir(log_dir: str | Path, experiment: str) -> Path:
+    """``<log_dir>/rsl_rl/<experiment>``: the folder holding one experiment's runs."""
+    return Path(log_dir) / TRAINER_DIR / experiment
+
+
+def new_run_dir(log_dir: str | Path, experiment: str, run_name: str = "") -> Path:
+    """A fresh ``<log_dir>/rsl_rl/<experiment>/<YYYY-mm-dd_HH-MM-SS>[_<run_name>]`` path (not created yet)."""
+    if run_name and not re.fullmatch(r"[\w.-]+", run_name):
+        raise ConfigError(f"run name {run_name!r} may hold only letters, digits, '_', '-' and '.'")
+    stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    base = experiment_dir(log_dir, experiment) / (f"{stamp}_{run_name}" if run_name else stamp)
+    path, n = base, 1
+    while path.exists():
+        path, n = base.with_name(f"{base.name}-{n}"), n + 1
+    return path
+
+
+def list_checkpoints(run_dir: Path) -> list[Path]:
+    """The run's ``model_<iteration>.pt`` files, oldest iteration first."""
+    found = [(int(m.group(1)), p) for p in Path(run_dir).glob("model_*.pt") if (m := _CHECKPOINT.match(p.name))]
+    return [p for _, p in sorted(found)]
+
+
+def latest_checkpoint(run_dir: Path) -> Path:
+    """The checkpoint with the highest iteration in ``run_dir``."""
+    checkpoints = list_checkpoints(run_dir)
+    if not checkpoints:
+        raise RunError(f"no checkpoint (model_<iteration>.pt) in {run_dir}")
+    return checkpoints[-1]
+
+
+def latest_run(log_dir: str | Path, experiment: str) -> Path:
+    """The newest run folder (by name, i.e. timestamp) that holds a config and a checkpoint."""
+    root = experiment_dir(log_dir, experiment)
+    runs = sorted(p for p in root.glob("*") if (p / CONFIG_FILE).is_file() and list_checkpoints(p))
+    if not runs:
+        raise RunError(f"no checkpoint under {root}; run train.py first or pass --checkpoint")
+    return runs[-1]
+
+
+def atomic_write(path: Path, write) -> Path:
+    """Call ``write(tmp_path)`` on a temporary file next to ``path``, then rename it onto ``path``:
+    readers see the old file or the complete new one, never a half-written one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write a text file atomically."""
+    return atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+
+def save_config(run_dir: Path, cfg: TrainConfig) -> Path:
+    """Write the resolved config as ``config.yaml``."""
+    return write_text(Path(run_dir) / CONFIG_FILE, yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
+
+
+def load_config(run_dir: Path) -> TrainConfig:
+    """The TrainConfig a run was trained with (its ``config.yaml``)."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise RunError(f"{path} not found: is {run_dir} a run folder?")
+    try:
+        return from_dict(TrainConfig, yaml.safe_load(path.read_text()) or {}, str(path))
+    except (yaml.YAMLError, ConfigError) as err:
+        raise RunError(f"cannot read {path}: {err}") from None
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the packages a run depends on."""
+    result = {"python": platform.python_version()}
+    for name in ("cartpole_warp", "torch", "warp-lang", "newton", "rsl-rl-lib"):
+        with contextlib.suppress(importlib.metadata.PackageNotFoundError):
+            result[name] = importlib.metadata.version(name)
+    return result
+
+
+@dataclass
+class Progress:
+    """Where training stands; saved in every checkpoint (``infos``) so that ``--resume`` continues it."""
+
+    iterations: int = 0
+    env_steps: int = 0
+    train_time_s: float = 0.0
+    solved_at: dict | None = None
+    """``{"iterations", "env_steps", "train_time_s"}`` when first solved."""
+    history: list[dict] = field(default_factory=list)
+    """One entry per iteration: episode means, env steps, time, solved."""
+
+
+@dataclass
+class RunSummary:
+    """``summary.json``: what a run did, in one schema."""
+
+    status: Literal["completed", "solved", "interrupted"]
+    iterations: int
+    env_steps: int
+    train_time_s: float
+    setup_time_s: float
+    env_steps_per_s: int | None
+    final: dict
+    """Episode means of the last iteration in which episodes finished."""
+    max_episode_length: int | None
+    env_dt_s: float
+    solved: bool
+    solved_at: dict | None
+    solved_definition: str
+    num_envs: int
+    device: str
+    checkpoint: str
+    exports: list[str]
+    versions: dict[str, str] = field(default_factory=versions)
+
+    def write(self, run_dir: Path) -> Path:
+        """Write ``summary.json`` atomically."""
+        return write_text(Path(run_dir) / SUMMARY_FILE, json.dumps(dataclasses.asdict(self), indent=2) + "\n")

@@ -1,0 +1,102 @@
+"""One training run: the env and ``CartpoleRunner`` built from a ``TrainConfig``, Ctrl-C handling, and the run
+folder's artefacts (config, checkpoints, exports, learning curve, ``summary.json``).
+
+    training = Training(cfg, run_dir)            # builds the env (compiles Warp kernels on first use)
+    summary = training.run()                     # Ctrl-C ends after the current iteration, saved
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import signal
+import time
+from pathlib import Path
+
+import torch
+
+from ..config import ConfigError
+from ..env import CartpoleEnv
+from ..wrappers.rsl_rl import RslRlVecEnv
+from .config import TrainConfig
+from .curve import plot_learning_curve
+from .metrics import SOLVED_LENGTH_FRACTION, SOLVED_REWARD_PER_STEP
+from .runner import CartpoleRunner
+from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_config
+
+SOLVED_DEFINITION = (f"mean episode length >= {SOLVED_LENGTH_FRACTION:.0%} of the time limit and mean reward per step "
+                     f">= {SOLVED_REWARD_PER_STEP} over one iteration's finished episodes")
+
+
+class Training:
+    """A run in ``run_dir`` (created, with its ``config.yaml``, only once the env is built and a checkpoint to resume
+    from is loaded)."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None):
+        self.cfg = cfg.validate()
+        if cfg.agent.logger == "wandb" and importlib.util.find_spec("wandb") is None:
+            raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
+        self.run_dir = Path(run_dir)
+        start = time.perf_counter()
+        torch.manual_seed(cfg.env.seed)
+        if cfg.torch_threads:
+            torch.set_num_threads(cfg.torch_threads)
+        self.env = RslRlVecEnv(CartpoleEnv(cfg.env))
+        self.runner = CartpoleRunner(self.env, cfg, self.run_dir)
+        if resume_from is not None:
+            self.runner.load(str(resume_from))
+        save_config(self.run_dir, cfg)
+        self.setup_time_s = time.perf_counter() - start
+        self._interrupts = 0
+
+    @property
+    def max_episode_length(self) -> int:
+        """The env's time limit in env steps."""
+        return self.env.max_episode_length
+
+    def _on_sigint(self, signum, frame):
+        self._interrupts += 1
+        if self._interrupts > 1:
+            raise KeyboardInterrupt
+        self.runner.request_stop("interrupted")
+        print("\nCtrl-C: stopping after this iteration and saving (press again to abort without saving)", flush=True)
+
+    def run(self) -> RunSummary:
+        """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or, with stop_when_solved, once solved); then
+        export the policy, draw the learning curve and write ``summary.json``."""
+        previous = signal.signal(signal.SIGINT, self._on_sigint)
+        try:
+            self.runner.learn(self.cfg.agent.max_iterations)
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        progress = self.runner.progress
+        exports = self.runner.export(self.run_dir / EXPORT_DIR) if progress.iterations else []
+        self.plot()
+        last = next((h for h in reversed(progress.history) if h["episodes"]), {})
+        has_limit = self.cfg.env.task.episode_length_s is not None
+        summary = RunSummary(
+            status=self.runner.stop_reason or "completed",
+            iterations=progress.iterations,
+            env_steps=progress.env_steps,
+            train_time_s=round(progress.train_time_s, 3),
+            setup_time_s=round(self.setup_time_s, 3),
+            env_steps_per_s=round(progress.env_steps / progress.train_time_s) if progress.train_time_s else None,
+            final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
+                                            "mean_reward_per_step", "time_limit_fraction")},
+            max_episode_length=self.max_episode_length if has_limit else None,
+            env_dt_s=self.cfg.env.sim.env_dt,
+            solved=progress.solved_at is not None,
+            solved_at=progress.solved_at,
+            solved_definition=SOLVED_DEFINITION,
+            num_envs=self.cfg.env.num_envs,
+            device=self.env.device,
+            checkpoint=latest_checkpoint(self.run_dir).name,
+            exports=[str(e.relative_to(self.run_dir)) for e in exports],
+        )
+        summary.write(self.run_dir)
+        return summary
+
+    def plot(self) -> Path:
+        """Draw ``learning_curve.png`` from the progress history."""
+        has_limit = self.cfg.env.task.episode_length_s is not None
+        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.cfg.env.sim.env_dt,
+                                   self.max_episode_length if has_limit else None)

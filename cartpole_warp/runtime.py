@@ -1,0 +1,165 @@
+"""Robot-agnostic machinery of a batched Warp env: Warp start-up, devices, CPU shards, graph capture and replay,
+and the order of torch and Warp work on CUDA. Nothing here knows the cartpole; an env for another robot keeps it.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import warp as wp
+
+from .config import ConfigError
+
+MIN_ENVS_PER_SHARD = 512
+"""Smallest shard worth its own scene and thread on the CPU."""
+_NO_DRIVER_WARNING = b"Could not find or load the NVIDIA CUDA driver"
+
+
+def init_warp() -> None:
+    """``wp.init()`` without the warning Warp's native library prints on every machine without an NVIDIA driver
+    (it writes straight to file descriptor 2, so it is filtered there); every other line passes. Changes no Warp
+    setting; once Warp is initialised it prints nothing more."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no usable file descriptor 2: nothing to filter
+        wp.init()
+        return
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        kept = [line for line in captured.read().splitlines(keepends=True) if _NO_DRIVER_WARNING not in line]
+    if kept:
+        os.write(2, b"".join(kept))
+
+
+def resolve_device(device: str) -> str:
+    """'cpu' or 'cuda:N' from 'cpu', 'cuda' or 'cuda:N'; ConfigError if it does not exist here."""
+    init_warp()
+    name = "cuda:0" if str(device) == "cuda" else str(device)
+    if name == "cpu":
+        return name
+    if not name.startswith("cuda:") or not name[5:].isdigit():
+        raise ConfigError(f"unknown device {device!r}; use 'cpu' or 'cuda:N'")
+    if not wp.is_cuda_available() or not torch.cuda.is_available():
+        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; use --device cpu")
+    if int(name[5:]) >= wp.get_cuda_device_count():
+        raise ConfigError(f"device {device!r} requested but only {wp.get_cuda_device_count()} CUDA device(s) exist")
+    return name
+
+
+def shard_bounds(num_envs: int, device: str, cpu_threads: int, shardable: bool = True) -> list[tuple[int, int]]:
+    """[start, stop) env ranges simulated as separate scenes. On the CPU (where Warp runs each kernel launch on one
+    thread) one per thread (``cpu_threads``, 0 = the available cores), each of at least MIN_ENVS_PER_SHARD envs;
+    on CUDA, or when the solver cannot be sharded, one."""
+    if device != "cpu" or not shardable:
+        return [(0, num_envs)]
+    threads = cpu_threads or len(os.sched_getaffinity(0))
+    count = max(1, min(threads, num_envs // MIN_ENVS_PER_SHARD))
+    edges = [num_envs * k // count for k in range(count + 1)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+@dataclass
+class Shard:
+    """The envs [start, stop) and the scene that simulates them."""
+
+    index: int
+    start: int
+    stop: int
+    scene: Any
+
+    @property
+    def num_envs(self) -> int:
+        return self.stop - self.start
+
+    def rows(self, array: wp.array) -> wp.array:
+        """The shard's rows of a per-env buffer (a view)."""
+        return array[self.start:self.stop]
+
+    def slot(self, counters: wp.array) -> wp.array:
+        """The shard's own element of a per-shard counter (a view)."""
+        return counters[self.index:self.index + 1]
+
+
+class TorchOrder:
+    """``with order:`` makes Warp work wait for pending torch work on entry and torch wait for the Warp work on exit
+    (CUDA streams; nothing to do on the CPU)."""
+
+    def __init__(self, device: str):
+        self.streams = None
+        if device != "cpu":
+            self.streams = wp.stream_from_torch(torch.cuda.current_stream(device)), wp.get_stream(device)
+
+    def __enter__(self):
+        if self.streams:
+            torch_stream, warp_stream = self.streams
+            warp_stream.wait_stream(torch_stream)
+
+    def __exit__(self, *exc):
+        if self.streams:
+            torch_stream, warp_stream = self.streams
+            torch_stream.wait_stream(warp_stream)
+
+
+class GraphReplay:
+    """Replays one captured graph per shard: in the calling thread for one, concurrently for several (Warp replays
+    a CPU graph in one native call that releases the GIL, so the shards use separate cores)."""
+
+    def __init__(self, graphs: list):
+        self.graphs = graphs
+        self._pool = ThreadPoolExecutor(len(graphs), thread_name_prefix="cartpole-shard") if len(graphs) > 1 else None
+
+    def __call__(self):
+        if self._pool is None:
+            wp.capture_launch(self.graphs[0])
+        else:
+            for _ in self._pool.map(wp.capture_launch, self.graphs):
+                pass
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown()
+
+
+class ShardedStep:
+    """``step_fn(shard)`` for every shard: captured once per shard and replayed (``capture=True``), or launched.
+
+    Whatever ``step_fn`` launches must only overwrite persistent arrays: a captured graph holds their pointers."""
+
+    def __init__(self, shards: list[Shard], step_fn: Callable[[Shard], None], order: TorchOrder, capture: bool):
+        self.shards, self.step_fn, self.order = shards, step_fn, order
+        self.replay = None
+        if capture:
+            graphs = []
+            for shard in shards:
+                with order, wp.ScopedCapture(device=shard.scene.model.device) as captured:
+                    step_fn(shard)
+                graphs.append(captured.graph)
+            self.replay = GraphReplay(graphs)
+
+    def __call__(self):
+        with self.order:
+            if self.replay is not None:
+                self.replay()
+            else:
+                for shard in self.shards:
+                    self.step_fn(shard)
+
+    def close(self):
+        """Stop the replay threads."""
+        if self.replay is not None:
+            self.replay.close()

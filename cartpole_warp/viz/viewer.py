@@ -1,0 +1,87 @@
+"""Newton's interactive ``ViewerGL`` on the batched env: the first envs stacked one above the other, seen side-on.
+
+Needs a display and the ``viz`` extra (pyglet, imgui-bundle): ``pip install 'cartpole_warp[viz]'``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Callable
+
+import newton
+import torch
+import warp as wp
+
+from ..env import CartpoleEnv
+
+ROWS = 4
+"""Envs shown: the first ones, one row each."""
+ROW_SPACING_M = 1.6
+"""Vertical distance between the rows (m)."""
+VIEW_WIDTH_M = 9.0
+"""Width of the view at the rails (m): the 8 m rail with a margin."""
+
+
+class ViewerUnavailable(RuntimeError):
+    """Newton's interactive viewer cannot open here; the message says why and what to do instead."""
+
+
+def check_viewer():
+    """Raise ViewerUnavailable unless a display and pyglet (needed by Newton's OpenGL viewer) are present."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise ViewerUnavailable("no display found ($DISPLAY is not set), so Newton's viewer cannot open; "
+                                "run with --headless to write a GIF and a USD recording instead")
+    try:
+        import imgui_bundle  # noqa: F401
+        import pyglet  # noqa: F401
+    except ImportError as err:
+        raise ViewerUnavailable(f"Newton's viewer needs the viz extra ({err.name} is missing): "
+                                "pip install 'cartpole_warp[viz]'; or run with --headless") from None
+
+
+def open_viewer(env: CartpoleEnv):
+    """A ``ViewerGL`` showing the first envs of ``env.scene``, side-on (looking along -X at the Y rails, Z up)."""
+    check_viewer()
+    from newton.viewer import ViewerGL
+
+    try:
+        viewer = ViewerGL(width=1280, height=720)
+    except Exception as err:  # GL context creation fails in many backend-specific ways
+        raise ViewerUnavailable(f"cannot open Newton's viewer ({type(err).__name__}: {err}); "
+                                "run with --headless instead") from None
+    rows = min(ROWS, env.scene.num_envs)
+    viewer.set_model(env.scene.model)
+    viewer.set_visible_worlds(range(rows))
+    viewer.set_world_offsets((0.0, 0.0, ROW_SPACING_M))
+    height_m = rows * ROW_SPACING_M + 0.5
+    tan_half_fov = math.tan(math.radians(viewer.camera.fov) / 2)
+    distance_m = max(height_m, VIEW_WIDTH_M * 720 / 1280) / (2 * tan_half_fov)
+    viewer.set_camera(wp.vec3(distance_m, 0.0, (rows - 1) * ROW_SPACING_M / 2 + 0.5), pitch=0.0, yaw=180.0)
+    return viewer
+
+
+def view_interactively(env: CartpoleEnv, policy: Callable[[torch.Tensor], torch.Tensor],
+                       max_steps: int | None = None) -> int:
+    """Run ``policy`` in Newton's viewer until its window closes (or ``max_steps`` env steps); return the steps run.
+    ViewerUnavailable if the viewer cannot open."""
+    viewer = open_viewer(env)
+    model = env.scene.model
+    shown = wp.array(model.articulation_world.numpy() < ROWS, dtype=wp.bool, device=model.device)
+    obs, _ = env.reset()
+    steps = 0
+    try:
+        with torch.inference_mode():
+            while viewer.is_running() and (max_steps is None or steps < max_steps):
+                if not viewer.is_paused():
+                    obs = env.step(policy(obs).to(torch.float32))[0]
+                    steps += 1
+                state = env.scene.state_0
+                newton.eval_fk(model, state.joint_q, state.joint_qd, state, mask=shown)  # poses of fresh resets too
+                viewer.begin_frame(steps * env.env_dt)
+                viewer.log_state(state)
+                viewer.end_frame()
+    finally:
+        viewer.close()
+    return steps

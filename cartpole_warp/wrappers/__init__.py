@@ -1,0 +1,3 @@
+"""Thin translations of ``CartpoleEnv`` to other libraries' interfaces: ``rsl_rl`` (rsl-rl ``VecEnv``), ``gymnasium``
+(``gymnasium.Env`` and ``VectorEnv``, registered ids) and ``sb3`` (Stable-Baselines3 ``VecEnv``). Each module imports
+its library; import the one you need."""
