@@ -54,3 +54,18 @@ def test_wheel_runs_make_env_and_training_outside_the_repo(repo, tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
     (summary,) = (outside / "runs").rglob("summary.json")
     assert json.loads(summary.read_text())["iterations"] == 1
+
+
+def test_the_library_changes_no_global_setting_and_hides_the_no_driver_warning(tmp_path):
+    script = (
+        "import logging, warp as wp\n"
+        "before = (wp.config.log_level, logging.getLogger('newton').level)\n"
+        "import cartpole_warp, torch\n"
+        "env = cartpole_warp.make_env(num_envs=2)\n"
+        "env.step(torch.zeros(2, 1))\n"
+        "assert (wp.config.log_level, logging.getLogger('newton').level) == before, before\n"
+        "print('stepped')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and "stepped" in result.stdout, result.stdout + result.stderr
+    assert "Could not find or load the NVIDIA CUDA driver" not in result.stdout + result.stderr
