@@ -58,7 +58,7 @@ def test_wheel_runs_make_env_and_training_outside_the_repo(repo, tmp_path):
 
 def test_the_library_changes_no_global_setting_and_hides_the_no_driver_warning(tmp_path):
     script = (
-        "import logging, warp as wp\n"
+        "import logging, newton, warp as wp  # newton sets its own logger's level when imported\n"
         "before = (wp.config.log_level, logging.getLogger('newton').level)\n"
         "import cartpole_warp, torch\n"
         "env = cartpole_warp.make_env(num_envs=2)\n"
