@@ -59,7 +59,7 @@ def test_train_writes_every_artefact(trained):
     assert not [p.name for p in run.rglob(".*")], "a temporary file survived"
 
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 64 * 16 and summary["status"] == "completed"
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 64 * 12 and summary["status"] == "completed"
     assert summary["env_steps_per_s"] > 0 and summary["device"] == "cpu" and summary["versions"]["rsl-rl-lib"]
     assert isinstance(summary["solved"], bool) and summary["checkpoint"] == "model_1.pt"
     assert summary["final"]["mean_episode_length"] > 0
@@ -167,8 +167,8 @@ def test_help_documents_flags_and_config_fields():
 
 @pytest.mark.parametrize("args, message", [
     (["--num-envs", "0"], "error: num_envs must be >= 1, got 0"),
-    (["--agent.algorithm.num-mini-batches", "3"], "error: agent.algorithm.num_mini_batches (3) must divide"),
-    (["--config", "nonexistent"], "error: unknown preset 'nonexistent'; known presets: default, tutorial"),
+    (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
+    (["--config", "nonexistent"], "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),
@@ -208,7 +208,7 @@ def test_sigint_saves_and_resume_continues(tmp_path):
     assert f"resuming from model_{done - 1}.pt" in result.stdout
     assert re.search(rf"it {done + 2}/{done + 2} \|", result.stdout), result.stdout
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["iterations"] == done + 2 and summary["env_steps"] == (done + 2) * 64 * 16
+    assert summary["iterations"] == done + 2 and summary["env_steps"] == (done + 2) * 64 * 12
     assert torch.load(run / f"model_{done + 1}.pt", weights_only=False)["iter"] == done + 1
 
 

@@ -1,0 +1,124 @@
+"""Time to a solved policy, over training settings and seeds: each run is ``python -m cartpole_warp.train`` with
+``--stop-when-solved`` (optionally followed by ``play --headless``), and the table says what each setting costs.
+
+    python -m cartpole_warp.rl.sweep --device cpu --seeds 0 1 2 3 4 \\
+        --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
+
+A variant is train.py's flags written ``name=value`` without the dashes, several in one quoted string; a list
+value is comma-separated (``agent.actor.hidden-dims=64,64``).
+
+Per variant: how many seeds solved, the iterations and training seconds to solved (median and worst), env-steps/s
+including PPO, and with ``--play`` the worst fraction of play.py's episodes that reached the time limit.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import tyro
+
+
+@dataclass
+class SweepArgs:
+    variants: list[str] = field(default_factory=lambda: ["config=default"])
+    """Settings to measure: train.py flags as name=value pairs, several in one quoted string per variant."""
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
+    """Seeds to run every variant with."""
+    device: str = "cpu"
+    """Device of every run."""
+    num_envs: int = 4096
+    """Envs of every run."""
+    max_iterations: int = 150
+    """Give up after this many iterations."""
+    play: bool = False
+    """Also run play.py --headless on each result (256 envs, one time limit)."""
+    log_dir: Path | None = None
+    """Keep the runs here (default: a temporary folder)."""
+
+
+@dataclass
+class RunResult:
+    variant: str
+    seed: int
+    solved_iterations: int | None
+    solved_time_s: float | None
+    env_steps_per_s: int
+    time_limit_fraction: float | None = None
+
+
+def variant_flags(variant: str) -> list[str]:
+    """train.py flags from ``"name=value name=v1,v2"``."""
+    flags = []
+    for pair in shlex.split(variant):
+        name, sep, value = pair.partition("=")
+        if not sep:
+            raise SystemExit(f"error: variant {variant!r}: {pair!r} is not name=value")
+        flags += [f"--{name}", *value.split(",")]
+    return flags
+
+
+def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
+    """One training run (and play) in a subprocess; its summary.json is the result."""
+    flags = [*variant_flags(variant), "--seed", str(seed), "--device", args.device, "--num-envs", str(args.num_envs),
+             "--max-iterations", str(args.max_iterations), "--stop-when-solved", "--logger", "none",
+             "--log-dir", str(log_dir)]
+    done = subprocess.run([sys.executable, "-m", "cartpole_warp.train", *flags], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"train.py {' '.join(flags)} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+    (summary_path,) = sorted(log_dir.rglob("summary.json"), key=lambda p: p.stat().st_mtime)[-1:]
+    summary = json.loads(summary_path.read_text())
+    solved = summary["solved_at"] or {}
+    result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"])
+    if args.play:
+        played = subprocess.run([sys.executable, "-m", "cartpole_warp.play", "--headless", "--run",
+                                 str(summary_path.parent), "--device", args.device], capture_output=True, text=True)
+        if played.returncode != 0:
+            raise RuntimeError(f"play.py on {summary_path.parent} failed:\n{played.stderr[-2000:]}")
+        record = json.loads((summary_path.parent / "play" / "result.json").read_text())
+        result.time_limit_fraction = record["time_limit_fraction"]
+    return result
+
+
+def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
+    """Markdown table: one row per variant."""
+    rows = ["| train.py flags | solved | iterations to solved (median / max) | seconds to solved (median / max) | "
+            "env-steps/s | play: reached time limit (min) |", "|---|---|---|---|---|---|"]
+    for variant in variants:
+        mine = [r for r in results if r.variant == variant]
+        solved = [r for r in mine if r.solved_iterations is not None]
+        iterations = [r.solved_iterations for r in solved]
+        times = [r.solved_time_s for r in solved]
+        played = [r.time_limit_fraction for r in mine if r.time_limit_fraction is not None]
+        rows.append(
+            f"| `{' '.join(variant_flags(variant))}` | {len(solved)}/{seeds} | "
+            + (f"{statistics.median(iterations):g} / {max(iterations)} | "
+               f"{statistics.median(times):.1f} / {max(times):.1f} | " if solved else "- | - | ")
+            + f"{statistics.median(r.env_steps_per_s for r in mine):,.0f} | "
+            + (f"{min(played):.1%} |" if played else "- |"))
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = tyro.cli(SweepArgs, args=sys.argv[1:] if argv is None else argv, description=__doc__)
+    results = []
+    with tempfile.TemporaryDirectory() as scratch:
+        root = args.log_dir or Path(scratch)
+        for variant in args.variants:
+            for seed in args.seeds:
+                result = run(args, variant, seed, root / f"v{args.variants.index(variant)}_s{seed}")
+                results.append(result)
+                print(f"{variant} | seed {seed}: solved at {result.solved_iterations} after {result.solved_time_s} s, "
+                      f"{result.env_steps_per_s:,} env-steps/s, play {result.time_limit_fraction}", flush=True)
+    print(table(results, args.variants, len(args.seeds)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

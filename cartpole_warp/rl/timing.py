@@ -1,0 +1,75 @@
+"""Where the time of one PPO iteration goes, for the training settings given as train.py flags.
+
+    python -m cartpole_warp.rl.timing --device cuda:0                       # the default settings
+    python -m cartpole_warp.rl.timing --device cuda:0 --config isaac_lab    # Isaac Lab's
+
+Times (device-synchronised, means over repeats after two warm-up iterations): ``env.step`` alone; one rollout step
+as the runner does it (policy ``act`` + ``env.step`` + ``process_env_step`` + episode statistics); the returns; the
+PPO update; and whole iterations of ``CartpoleRunner.learn``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+
+import torch
+
+from ..cli import quiet_libraries
+from ..env import CartpoleEnv
+from ..train import resolve
+from ..wrappers.rsl_rl import RslRlVecEnv
+from .runner import CartpoleRunner
+
+
+def timed_ms(work: Callable[[], object], device: str, repeats: int) -> float:
+    """Mean milliseconds of ``work()``, the device synchronised before and after."""
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    sync()
+    start = time.perf_counter()
+    for _ in range(repeats):
+        work()
+    sync()
+    return (time.perf_counter() - start) / repeats * 1e3
+
+
+def main(argv: list[str] | None = None) -> int:
+    quiet_libraries()
+    cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
+    torch.manual_seed(cfg.env.seed)
+    if cfg.torch_threads:
+        torch.set_num_threads(cfg.torch_threads)
+    env = RslRlVecEnv(CartpoleEnv(cfg.env))
+    runner = CartpoleRunner(env, cfg, None)
+    device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg
+    runner.learn(2)
+    obs = env.get_observations()
+
+    def rollout_step():
+        nonlocal obs
+        with torch.inference_mode():
+            obs, rewards, dones, extras = env.step(alg.act(obs))
+            alg.process_env_step(obs, rewards, dones, extras)
+            runner.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"], extras["time_outs"])
+
+    zeros = torch.zeros(env.num_envs, 1, device=device)
+    rows = {"env.step alone": timed_ms(lambda: env.step(zeros), device, 50)}
+    rows["rollout step (act + env.step + storage + statistics)"] = timed_ms(rollout_step, device, steps)
+    with torch.inference_mode():
+        rows["returns (compute_returns)"] = timed_ms(lambda: alg.compute_returns(obs), device, 1)
+    rows["update (all mini-batches)"] = timed_ms(alg.update, device, 1)
+    iterations = 10
+    rows["whole iteration (CartpoleRunner.learn)"] = timed_ms(lambda: runner.learn(iterations), device, 1) / iterations
+    per_iteration = rows["whole iteration (CartpoleRunner.learn)"]
+    name = torch.cuda.get_device_name(device) if device.startswith("cuda") else "CPU"
+    print(f"\n{name}, {env.num_envs} envs, {steps} steps per env, {type(alg).__name__}, "
+          f"{alg.num_learning_epochs} epochs x {alg.num_mini_batches} mini-batches")
+    for what, ms in rows.items():
+        print(f"  {what:<55} {ms:9.3f} ms")
+    print(f"  {'env steps per second including PPO':<55} {env.num_envs * steps / per_iteration * 1e3:12,.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

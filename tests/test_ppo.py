@@ -1,0 +1,68 @@
+"""SyncFreePPO's update equals rsl-rl's PPO update on the same rollout: same networks, learning rate and losses."""
+
+import copy
+
+import pytest
+import torch
+
+import cartpole_warp
+from cartpole_warp.rl.config import TrainConfig
+from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+
+def runner_for(class_name, schedule="adaptive"):
+    cfg = TrainConfig()
+    cfg.env.num_envs = 64
+    cfg.agent.algorithm.class_name = class_name
+    cfg.agent.algorithm.schedule = schedule
+    cfg.agent.algorithm.num_mini_batches = 8
+    cfg.agent.algorithm.num_learning_epochs = 3
+    torch.manual_seed(0)
+    return CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=3)), cfg, None)
+
+
+def collect(runner):
+    obs = runner.env.get_observations()
+    with torch.inference_mode():
+        for _ in range(runner.cfg["num_steps_per_env"]):
+            obs, rewards, dones, extras = runner.env.step(runner.alg.act(obs))
+            runner.alg.process_env_step(obs, rewards, dones, extras)
+        runner.alg.compute_returns(obs)
+
+
+@pytest.mark.parametrize("schedule", ["adaptive", "fixed"])
+def test_sync_free_update_equals_rsl_rl_update(schedule):
+    reference, sync_free = runner_for("PPO", schedule), runner_for("SyncFreePPO", schedule)
+    assert type(sync_free.alg).__name__ == "SyncFreePPO" and type(reference.alg).__name__ == "PPO"
+    sync_free.alg.actor.load_state_dict(reference.alg.actor.state_dict())
+    sync_free.alg.critic.load_state_dict(reference.alg.critic.state_dict())
+    for _ in range(3):
+        torch.manual_seed(1)
+        collect(reference)
+        sync_free.alg.storage = copy.deepcopy(reference.alg.storage)
+        torch.manual_seed(2)
+        expected = reference.alg.update()
+        torch.manual_seed(2)
+        got = sync_free.alg.update()
+        for name in ("value", "surrogate", "entropy"):
+            assert got[name] == pytest.approx(expected[name], rel=1e-4, abs=1e-6), name
+        assert sync_free.alg.learning_rate == pytest.approx(reference.alg.learning_rate, rel=1e-5)
+        for ours, theirs in zip(sync_free.alg.actor.parameters(), reference.alg.actor.parameters(), strict=True):
+            torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)
+        for ours, theirs in zip(sync_free.alg.critic.parameters(), reference.alg.critic.parameters(), strict=True):
+            torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)
+    if schedule == "adaptive":
+        assert reference.alg.learning_rate != 1e-3, "the adaptive rule must have acted for the test to mean something"
+
+
+def test_sync_free_ppo_loads_a_ppo_checkpoint_and_keeps_its_rate_tensor(tmp_path):
+    reference, sync_free = runner_for("PPO"), runner_for("SyncFreePPO")
+    collect(reference)
+    reference.alg.update()
+    reference.save(str(tmp_path / "model_0.pt"))
+    sync_free.load(str(tmp_path / "model_0.pt"))
+    assert sync_free.alg.learning_rate == pytest.approx(reference.alg.learning_rate)
+    assert sync_free.alg.optimizer.param_groups[0]["lr"] is sync_free.alg._learning_rate
+    collect(sync_free)
+    sync_free.alg.update()
