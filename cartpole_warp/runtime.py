@@ -7,8 +7,9 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -97,22 +98,50 @@ class Shard:
 
 class TorchOrder:
     """``with order:`` makes Warp work wait for pending torch work on entry and torch wait for the Warp work on exit
-    (CUDA streams; nothing to do on the CPU)."""
+    (the current CUDA streams of both, which are one stream inside a capture; nothing to do on the CPU)."""
 
     def __init__(self, device: str):
-        self.streams = None
-        if device != "cpu":
-            self.streams = wp.stream_from_torch(torch.cuda.current_stream(device)), wp.get_stream(device)
+        self.device = device
+        self._warp_streams: dict[int, wp.Stream] = {}
+        self._streams = None
+
+    def _current(self) -> tuple[wp.Stream, wp.Stream] | None:
+        torch_stream = torch.cuda.current_stream(self.device)
+        if torch_stream.cuda_stream not in self._warp_streams:
+            self._warp_streams[torch_stream.cuda_stream] = wp.stream_from_torch(torch_stream)
+        as_warp, warp_stream = self._warp_streams[torch_stream.cuda_stream], wp.get_stream(self.device)
+        return None if as_warp.cuda_stream == warp_stream.cuda_stream else (as_warp, warp_stream)
 
     def __enter__(self):
-        if self.streams:
-            torch_stream, warp_stream = self.streams
-            warp_stream.wait_stream(torch_stream)
+        if self.device != "cpu":
+            self._streams = self._current()
+            if self._streams:
+                torch_stream, warp_stream = self._streams
+                warp_stream.wait_stream(torch_stream)
 
     def __exit__(self, *exc):
-        if self.streams:
-            torch_stream, warp_stream = self.streams
+        if self._streams:
+            torch_stream, warp_stream = self._streams
             torch_stream.wait_stream(warp_stream)
+
+
+@contextmanager
+def torch_capture(graph: torch.cuda.CUDAGraph, device: str) -> Iterator[None]:
+    """Capture the torch work of the block, and the Warp kernels launched in it, into ``graph``: torch and Warp share
+    one new stream, and Warp is told the capture is torch's (Warp's own ``ScopedCapture`` cannot hold torch work)."""
+    stream = torch.cuda.Stream(device=device)
+    with wp.ScopedStream(wp.stream_from_torch(stream)), torch.cuda.graph(graph, stream=stream):
+        wp.capture_begin(force_module_load=False, external=True)
+        try:
+            yield
+        finally:
+            wp.capture_end()
+
+
+def capturing(device: str) -> bool:
+    """Whether torch is capturing a CUDA graph on ``device``'s current stream (the env's own captured graph is then
+    not replayed but its kernels launched into the outer capture)."""
+    return device != "cpu" and torch.cuda.is_current_stream_capturing()
 
 
 class GraphReplay:
@@ -153,7 +182,7 @@ class ShardedStep:
 
     def __call__(self):
         with self.order:
-            if self.replay is not None:
+            if self.replay is not None and not capturing(self.order.device):
                 self.replay()
             else:
                 for shard in self.shards:

@@ -111,6 +111,10 @@ class RunnerConfig:
     """Metrics writer: 'tensorboard', 'wandb' (needs the wandb package) or 'none' (checkpoints and summary only)."""
     wandb_project: str = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""
+    cuda_graph: bool = True
+    """On a GPU, capture one iteration's rollout (and, with SyncFreePPO on one GPU, its update) as CUDA graphs after
+    the first iterations, and replay them: one launch each instead of thousands. Ignored on the CPU and with
+    console 'rsl_rl' (whose per-step bookkeeping reads the device)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)
@@ -118,10 +122,11 @@ class RunnerConfig:
     def to_rsl_rl(self) -> dict:
         """rsl-rl's ``train_cfg`` dict: class names added, our own fields left out."""
         cfg = dataclasses.asdict(self)
-        for key in ("max_iterations", "experiment_name", "wandb_project"):
+        for key in ("max_iterations", "experiment_name", "wandb_project", "cuda_graph"):
             del cfg[key]
         if self.algorithm.class_name == "SyncFreePPO":
             cfg["algorithm"]["class_name"] = "cartpole_warp.rl.ppo:SyncFreePPO"
+            cfg["algorithm"]["cuda_graph"] = self.cuda_graph
         cfg["actor"]["class_name"] = "MLPModel"
         cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
         cfg["critic"]["class_name"] = "MLPModel"

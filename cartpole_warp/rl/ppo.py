@@ -5,7 +5,9 @@ surrogate and entropy losses); on a GPU each read drains the queue, so the CPU c
 small network costs its launch time plus its run time. Here the learning rate is a tensor that the KL rule updates
 on the device (``torch.where`` instead of ``if``), Adam takes it as a tensor (``fused=True``), and the losses are
 summed on the device and read once per update. Everything else is rsl-rl's (storage, models, ``act``, returns,
-mini-batches, the same loss): ``tests/test_ppo.py`` checks that both updates give the same networks.
+mini-batches, the same loss): ``tests/test_ppo.py`` checks that both updates give the same networks. Free of syncs,
+the gradient steps of an update can also be captured as one CUDA graph (``cuda_graph``): one launch instead of
+~150 kernel launches per mini-batch.
 """
 
 from __future__ import annotations
@@ -20,13 +22,17 @@ from torch import nn
 class SyncFreePPO(PPO):
     """rsl-rl ``PPO`` (feed-forward models, no RND or symmetry) whose ``update`` has no host sync per mini-batch."""
 
-    def __init__(self, actor, critic, storage, *args, **kwargs):
+    def __init__(self, actor, critic, storage, *args, cuda_graph: bool = False, **kwargs):
         self._learning_rate = None
         super().__init__(actor, critic, storage, *args, **kwargs)
         if self.rnd or self.symmetry or actor.is_recurrent or critic.is_recurrent:
             raise ValueError("SyncFreePPO supports feed-forward actor and critic without RND or symmetry; use PPO")
+        self.cuda_graph = cuda_graph and torch.device(self.device).type == "cuda" and not self.is_multi_gpu
+        """Capture the update's gradient steps as one CUDA graph (on a single GPU)."""
         self.optimizer = torch.optim.Adam(chain(self.actor.parameters(), self.critic.parameters()),
-                                          lr=self._learning_rate, fused=True)
+                                          lr=self._learning_rate, fused=True, capturable=self.cuda_graph)
+        self._graph, self._warmed_up = None, False
+        self._advantages = self._permutation = self._sums = None
 
     @property
     def learning_rate(self) -> float:
@@ -46,7 +52,7 @@ class SyncFreePPO(PPO):
         rsl-rl's PPO carries a float rate and its own Adam options)."""
         iteration = super().load(loaded_dict, load_cfg, strict)
         for group in self.optimizer.param_groups:
-            group.update(lr=self._learning_rate, fused=True, foreach=None)
+            group.update(lr=self._learning_rate, fused=True, foreach=None, capturable=self.cuda_graph)
         for param, state in self.optimizer.state.items():
             if "step" in state:
                 state["step"] = state["step"].to(param.device, torch.float32)
@@ -64,48 +70,84 @@ class SyncFreePPO(PPO):
                              torch.where((kl_mean < self.desired_kl / 2.0) & (kl_mean > 0.0), larger, lr)))
 
     def update(self) -> dict[str, float]:
-        """rsl-rl's ``PPO.update``: the same mini-batches, losses, learning-rate rule and gradient steps."""
-        sums = torch.zeros(3, device=self.device)
-        """value loss, surrogate loss, entropy, summed over the mini-batches."""
-        for batch in self.storage.mini_batch_generator(self.num_mini_batches, self.num_learning_epochs):
-            if self.normalize_advantage_per_mini_batch:
-                with torch.no_grad():
-                    batch.advantages = (batch.advantages - batch.advantages.mean()) / (batch.advantages.std() + 1e-8)
-            with torch.amp.autocast(device_type=torch.device(self.device).type, enabled=self.use_mixed_precision,
-                                    dtype=torch.bfloat16):
-                self.actor(batch.observations, stochastic_output=True)
-                actions_log_prob = self.actor.get_output_log_prob(batch.actions)
-                values = self.critic(batch.observations)
-                distribution_params = self.actor.output_distribution_params
-                entropy = self.actor.output_entropy
-                if self.desired_kl is not None and self.schedule == "adaptive":
-                    with torch.inference_mode():
-                        kl = self.actor.get_kl_divergence(batch.old_distribution_params, distribution_params)
-                        self._adapt_learning_rate(torch.mean(kl))
-                ratio = torch.exp(actions_log_prob - torch.squeeze(batch.old_actions_log_prob))
-                advantages = torch.squeeze(batch.advantages)
-                surrogate = -advantages * ratio
-                surrogate_clipped = -advantages * torch.clamp(ratio, 1.0 - self.clip_param, 1.0 + self.clip_param)
-                surrogate_loss = torch.max(surrogate, surrogate_clipped).mean()
-                if self.use_clipped_value_loss:
-                    value_clipped = batch.values + (values - batch.values).clamp(-self.clip_param, self.clip_param)
-                    value_losses = (values - batch.returns).pow(2)
-                    value_loss = torch.max(value_losses, (value_clipped - batch.returns).pow(2)).mean()
-                else:
-                    value_loss = (batch.returns - values).pow(2).mean()
-                entropy_mean = entropy.mean()
-                loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy_mean
-            self.optimizer.zero_grad()
-            loss.backward()
-            if self.is_multi_gpu:
-                self.reduce_parameters()
-            nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
-            nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
-            self.optimizer.step()
-            sums += torch.stack((value_loss.detach(), surrogate_loss.detach(), entropy_mean.detach()))
-        obs = self.storage.observations.flatten(0, 1)
+        """rsl-rl's ``PPO.update``: the same mini-batches, losses, learning-rate rule and gradient steps. With
+        ``cuda_graph`` the mini-batch steps are captured once (at the second update, after Adam made its state) and
+        replayed after."""
+        st = self.storage
+        batch_size = self.num_mini_batches * (st.num_envs * st.num_transitions_per_env // self.num_mini_batches)
+        if self._advantages is None:
+            self._advantages = torch.empty_like(st.advantages)
+            self._permutation = torch.empty(batch_size, dtype=torch.long, device=self.device)
+            self._sums = torch.zeros(3, device=self.device)
+        self._advantages.copy_(st.advantages)
+        self._permutation.copy_(torch.randperm(batch_size, requires_grad=False, device=self.device))
+        if not self.cuda_graph:
+            self._gradient_steps()
+        elif self._graph is not None:
+            self._graph.replay()
+        elif self._warmed_up:
+            self._graph = torch.cuda.CUDAGraph()
+            self.optimizer.zero_grad(set_to_none=True)
+            with torch.cuda.graph(self._graph):
+                self._gradient_steps()
+            self._graph.replay()
+        else:
+            self._gradient_steps()
+            self._warmed_up = True
+        obs = st.observations.flatten(0, 1)
         self.actor.update_normalization(obs)
         self.critic.update_normalization(obs)
-        self.storage.clear()
-        value, surrogate, entropy = (sums / (self.num_learning_epochs * self.num_mini_batches)).tolist()
+        st.clear()
+        value, surrogate, entropy = (self._sums / (self.num_learning_epochs * self.num_mini_batches)).tolist()
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
+
+    def _gradient_steps(self):
+        """Every epoch's mini-batches (slices of ``_permutation`` over the flattened rollout, as rsl-rl's
+        ``mini_batch_generator`` makes them): loss, adaptive learning rate, gradient step; losses summed into
+        ``_sums``. Only device work on tensors that stay put, so that it can be captured as a CUDA graph."""
+        st = self.storage
+        observations = st.observations.flatten(0, 1)
+        actions, values, returns = st.actions.flatten(0, 1), st.values.flatten(0, 1), st.returns.flatten(0, 1)
+        old_log_prob, advantages = st.actions_log_prob.flatten(0, 1), self._advantages.flatten(0, 1)
+        old_params = tuple(p.flatten(0, 1) for p in st.distribution_params)
+        size = self._permutation.numel() // self.num_mini_batches
+        self._sums.zero_()
+        for _ in range(self.num_learning_epochs):
+            for i in range(self.num_mini_batches):
+                index = self._permutation[i * size:(i + 1) * size]
+                self._gradient_step(observations[index], actions[index], values[index], returns[index],
+                                    old_log_prob[index], advantages[index], tuple(p[index] for p in old_params))
+
+    def _gradient_step(self, observations, actions, old_values, returns, old_log_prob, advantages, old_params):
+        """One mini-batch of rsl-rl's PPO loss and optimizer step."""
+        if self.normalize_advantage_per_mini_batch:
+            with torch.no_grad():
+                advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        with torch.amp.autocast(device_type=torch.device(self.device).type, enabled=self.use_mixed_precision,
+                                dtype=torch.bfloat16):
+            self.actor(observations, stochastic_output=True)
+            log_prob = self.actor.get_output_log_prob(actions)
+            values = self.critic(observations)
+            entropy = self.actor.output_entropy.mean()
+            if self.desired_kl is not None and self.schedule == "adaptive":
+                with torch.inference_mode():
+                    kl = self.actor.get_kl_divergence(old_params, self.actor.output_distribution_params)
+                    self._adapt_learning_rate(torch.mean(kl))
+            ratio = torch.exp(log_prob - torch.squeeze(old_log_prob))
+            advantages = torch.squeeze(advantages)
+            clipped_ratio = torch.clamp(ratio, 1.0 - self.clip_param, 1.0 + self.clip_param)
+            surrogate_loss = torch.max(-advantages * ratio, -advantages * clipped_ratio).mean()
+            if self.use_clipped_value_loss:
+                value_clipped = old_values + (values - old_values).clamp(-self.clip_param, self.clip_param)
+                value_loss = torch.max((values - returns).pow(2), (value_clipped - returns).pow(2)).mean()
+            else:
+                value_loss = (returns - values).pow(2).mean()
+            loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
+        self.optimizer.zero_grad()
+        loss.backward()
+        if self.is_multi_gpu:
+            self.reduce_parameters()
+        nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
+        nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
+        self.optimizer.step()
+        self._sums += torch.stack((value_loss.detach(), surrogate_loss.detach(), entropy.detach()))

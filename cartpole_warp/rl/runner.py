@@ -27,6 +27,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
+from ..runtime import torch_capture
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .metrics import EpisodeStats, EpisodeSummary, is_solved
@@ -59,6 +60,8 @@ class CartpoleRunner(OnPolicyRunner):
         self.episodes = EpisodeStats(env.device)
         self.stop_reason: str | None = None
         self._stop_requested: str | None = None
+        self._rollout_graph = self._rollout_input = self._rollout_output = None
+        self._rollout_warmed_up = False
         self.add_git_repo_to_log(__file__)
 
     @property
@@ -84,21 +87,11 @@ class CartpoleRunner(OnPolicyRunner):
         self._first_iteration = self.current_learning_iteration
         self._end_iteration = self._first_iteration + num_learning_iterations
         self._start = self._tick = time.perf_counter()
-        rsl_rl_console = self.train_cfg.console == "rsl_rl"
         for it in range(self._first_iteration, self._end_iteration):
             start = time.perf_counter()
             with torch.inference_mode():
-                for _ in range(self.cfg["num_steps_per_env"]):
-                    actions = self.alg.act(obs)
-                    obs, rewards, dones, extras = self.env.step(actions.to(self.env.device))
-                    obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
-                    self.alg.process_env_step(obs, rewards, dones, extras)
-                    self.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"],
-                                      extras["time_outs"])
-                    if rsl_rl_console:
-                        self.logger.process_env_step(rewards, dones, extras)
-                collected = time.perf_counter()
-                self.alg.compute_returns(obs)
+                obs = self._collect(obs)
+            collected = time.perf_counter()
             loss_dict = self.alg.update()
             self.current_learning_iteration = it
             self._end_of_iteration(it, collected - start, time.perf_counter() - collected, loss_dict)
@@ -109,6 +102,39 @@ class CartpoleRunner(OnPolicyRunner):
         if self.run_dir is not None:
             self.save(str(self.run_dir / f"model_{self.current_learning_iteration}.pt"))
             self.logger.stop_logging_writer()
+
+    def _rollout(self, obs: TensorDict) -> TensorDict:
+        """One iteration's experience: ``num_steps_per_env`` x (act, env step, storage, episode statistics), then
+        the returns; the last observations out. Only device work unless the console is rsl-rl's."""
+        rsl_rl_console = self.train_cfg.console == "rsl_rl"
+        for _ in range(self.cfg["num_steps_per_env"]):
+            actions = self.alg.act(obs)
+            obs, rewards, dones, extras = self.env.step(actions.to(self.env.device))
+            obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
+            self.alg.process_env_step(obs, rewards, dones, extras)
+            self.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"], extras["time_outs"])
+            if rsl_rl_console:
+                self.logger.process_env_step(rewards, dones, extras)
+        self.alg.compute_returns(obs)
+        return obs
+
+    def _collect(self, obs: TensorDict) -> TensorDict:
+        """``_rollout``, on a GPU with ``cuda_graph`` captured at the second iteration (the first made the lazily
+        allocated storage) and replayed after; the env's Warp kernels join the capture on torch's stream."""
+        graphable = (self.train_cfg.agent.cuda_graph and self.train_cfg.console != "rsl_rl"
+                     and torch.device(self.device).type == "cuda")
+        if not graphable or self._rollout_graph is None and not self._rollout_warmed_up:
+            self._rollout_warmed_up = True
+            return self._rollout(obs)
+        if self._rollout_graph is None:
+            self._rollout_input = obs.clone()
+            graph = torch.cuda.CUDAGraph()
+            with torch_capture(graph, self.device):
+                self._rollout_output = self._rollout(self._rollout_input)
+            self._rollout_graph = graph
+        self._rollout_input.copy_(obs)
+        self._rollout_graph.replay()
+        return self._rollout_output
 
     def _end_of_iteration(self, it: int, collect_time: float, learn_time: float, loss_dict: dict):
         now = time.perf_counter()

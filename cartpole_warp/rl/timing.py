@@ -3,9 +3,11 @@
     python -m cartpole_warp.rl.timing --device cuda:0                       # the default settings
     python -m cartpole_warp.rl.timing --device cuda:0 --config isaac_lab    # Isaac Lab's
 
-Times (device-synchronised, means over repeats after two warm-up iterations): ``env.step`` alone; one rollout step
-as the runner does it (policy ``act`` + ``env.step`` + ``process_env_step`` + episode statistics); the returns; the
-PPO update; and whole iterations of ``CartpoleRunner.learn``.
+Times (device-synchronised, means over repeats after three warm-up iterations, by which time training has captured
+its CUDA graphs on a GPU): ``env.step`` alone; one rollout step launched op by op (policy ``act`` + ``env.step`` +
+``process_env_step`` + episode statistics); one iteration's rollout and returns as training runs them (one graph
+replay on a GPU with ``agent.cuda_graph``); the PPO update as training runs it; whole iterations of
+``CartpoleRunner.learn``.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     env = RslRlVecEnv(CartpoleEnv(cfg.env))
     runner = CartpoleRunner(env, cfg, None)
     device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg
-    runner.learn(2)
+    runner.learn(3)
     obs = env.get_observations()
 
     def rollout_step():
@@ -53,12 +55,17 @@ def main(argv: list[str] | None = None) -> int:
             alg.process_env_step(obs, rewards, dones, extras)
             runner.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"], extras["time_outs"])
 
+    def rollout():
+        nonlocal obs
+        with torch.inference_mode():
+            obs = runner._collect(obs)
+
     zeros = torch.zeros(env.num_envs, 1, device=device)
     rows = {"env.step alone": timed_ms(lambda: env.step(zeros), device, 50)}
-    rows["rollout step (act + env.step + storage + statistics)"] = timed_ms(rollout_step, device, steps)
-    with torch.inference_mode():
-        rows["returns (compute_returns)"] = timed_ms(lambda: alg.compute_returns(obs), device, 1)
-    rows["update (all mini-batches)"] = timed_ms(alg.update, device, 1)
+    rows["rollout step launched op by op (act + env.step + storage + stats)"] = timed_ms(rollout_step, device, steps)
+    alg.storage.clear()
+    rows[f"rollout of {steps} steps + returns, as training runs it"] = timed_ms(rollout, device, 1)
+    rows["update (all mini-batches), as training runs it"] = timed_ms(alg.update, device, 1)
     iterations = 10
     rows["whole iteration (CartpoleRunner.learn)"] = timed_ms(lambda: runner.learn(iterations), device, 1) / iterations
     per_iteration = rows["whole iteration (CartpoleRunner.learn)"]
@@ -66,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n{name}, {env.num_envs} envs, {steps} steps per env, {type(alg).__name__}, "
           f"{alg.num_learning_epochs} epochs x {alg.num_mini_batches} mini-batches")
     for what, ms in rows.items():
-        print(f"  {what:<55} {ms:9.3f} ms")
-    print(f"  {'env steps per second including PPO':<55} {env.num_envs * steps / per_iteration * 1e3:12,.0f}")
+        print(f"  {what:<66} {ms:9.3f} ms")
+    print(f"  {'env steps per second including PPO':<66} {env.num_envs * steps / per_iteration * 1e3:12,.0f}")
     return 0
 
 

@@ -1,0 +1,46 @@
+"""The CUDA-graph paths of training (rollout and SyncFreePPO update captured once, replayed after) give what the same
+work launched op by op gives. They exist on a GPU only: ``CARTPOLE_TEST_DEVICE=cuda:0 pytest tests/test_cuda_graph.py``
+runs them there; on the CPU the same code runs op by op and the rest of the suite covers it."""
+
+import pytest
+import torch
+
+import cartpole_warp
+from cartpole_warp.rl.config import TrainConfig
+from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+
+def runner(device, cuda_graph):
+    cfg = TrainConfig()
+    cfg.env.num_envs, cfg.env.device, cfg.agent.cuda_graph, cfg.stop_when_solved = 4096, device, cuda_graph, True
+    torch.manual_seed(0)
+    return CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=4096, device=device, seed=0)), cfg, None)
+
+
+@pytest.fixture
+def cuda(device):
+    if not device.startswith("cuda"):
+        pytest.skip("CUDA graphs need a GPU: CARTPOLE_TEST_DEVICE=cuda:0")
+    return device
+
+
+def test_graphed_iterations_equal_launched_ones(cuda):
+    graphed, launched = runner(cuda, True), runner(cuda, False)
+    for r in (graphed, launched):
+        torch.manual_seed(1)
+        torch.cuda.manual_seed(1)
+        r.learn(4)
+    assert graphed._rollout_graph is not None and graphed.alg._graph is not None, "the graphs were not used"
+    assert launched._rollout_graph is None and launched.alg._graph is None
+    for ours, theirs in zip(graphed.alg.actor.parameters(), launched.alg.actor.parameters(), strict=True):
+        torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)
+    for ours, theirs in zip(graphed.progress.history, launched.progress.history, strict=True):
+        assert ours["episodes"] == theirs["episodes"]
+        assert ours["mean_return"] == pytest.approx(theirs["mean_return"], rel=1e-4)
+
+
+def test_graphed_training_solves(cuda):
+    trained = runner(cuda, True)
+    trained.learn(150)
+    assert trained.stop_reason == "solved", trained.progress.history[-1]
