@@ -125,17 +125,43 @@ class TorchOrder:
             torch_stream.wait_stream(warp_stream)
 
 
-@contextmanager
-def torch_capture(graph: torch.cuda.CUDAGraph, device: str) -> Iterator[None]:
-    """Capture the torch work of the block, and the Warp kernels launched in it, into ``graph``: torch and Warp share
-    one new stream, and Warp is told the capture is torch's (Warp's own ``ScopedCapture`` cannot hold torch work)."""
-    stream = torch.cuda.Stream(device=device)
-    with wp.ScopedStream(wp.stream_from_torch(stream)), torch.cuda.graph(graph, stream=stream):
-        wp.capture_begin(force_module_load=False, external=True)
-        try:
-            yield
-        finally:
-            wp.capture_end()
+class TorchGraph:
+    """``graphed(work)``: ``work()`` (torch work, and Warp kernels launched in it) run op by op on a side stream the
+    first time (which makes cuBLAS handles and lazily allocated state there), captured as one CUDA graph on that
+    stream the second time, then replayed; returns what ``work`` returned when captured. Its inputs and outputs must
+    be tensors that stay put. Warp is told the capture is torch's (Warp's ``ScopedCapture`` cannot hold torch work)."""
+
+    def __init__(self, device: str):
+        self.device = device
+        self.stream = torch.cuda.Stream(device=device)
+        self.graph: torch.cuda.CUDAGraph | None = None
+        self.output = None
+        self._warmed_up = False
+
+    def __call__(self, work: Callable[[], object]):
+        if self.graph is None:
+            self.stream.wait_stream(torch.cuda.current_stream(self.device))
+            if not self._warmed_up:
+                with torch.cuda.stream(self.stream):
+                    output = work()
+                torch.cuda.current_stream(self.device).wait_stream(self.stream)
+                self._warmed_up = True
+                return output
+            graph = torch.cuda.CUDAGraph()
+            with self._capture(graph):
+                self.output = work()
+            self.graph = graph
+        self.graph.replay()
+        return self.output
+
+    @contextmanager
+    def _capture(self, graph: torch.cuda.CUDAGraph) -> Iterator[None]:
+        with wp.ScopedStream(wp.stream_from_torch(self.stream)), torch.cuda.graph(graph, stream=self.stream):
+            wp.capture_begin(force_module_load=False, external=True)
+            try:
+                yield
+            finally:
+                wp.capture_end()
 
 
 def capturing(device: str) -> bool:

@@ -31,7 +31,7 @@ def test_graphed_iterations_equal_launched_ones(cuda):
         torch.manual_seed(1)
         torch.cuda.manual_seed(1)
         r.learn(4)
-    assert graphed._rollout_graph is not None and graphed.alg._graph is not None, "the graphs were not used"
+    assert graphed._rollout_graph.graph is not None and graphed.alg._graph.graph is not None, "no graph was used"
     assert launched._rollout_graph is None and launched.alg._graph is None
     for ours, theirs in zip(graphed.alg.actor.parameters(), launched.alg.actor.parameters(), strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)

@@ -18,6 +18,8 @@ import torch
 from rsl_rl.algorithms import PPO
 from torch import nn
 
+from ..runtime import TorchGraph
+
 
 class SyncFreePPO(PPO):
     """rsl-rl ``PPO`` (feed-forward models, no RND or symmetry) whose ``update`` has no host sync per mini-batch."""
@@ -31,7 +33,7 @@ class SyncFreePPO(PPO):
         """Capture the update's gradient steps as one CUDA graph (on a single GPU)."""
         self.optimizer = torch.optim.Adam(chain(self.actor.parameters(), self.critic.parameters()),
                                           lr=self._learning_rate, fused=True, capturable=self.cuda_graph)
-        self._graph, self._warmed_up = None, False
+        self._graph = TorchGraph(self.device) if self.cuda_graph else None
         self._advantages = self._permutation = self._sums = None
 
     @property
@@ -71,8 +73,8 @@ class SyncFreePPO(PPO):
 
     def update(self) -> dict[str, float]:
         """rsl-rl's ``PPO.update``: the same mini-batches, losses, learning-rate rule and gradient steps. With
-        ``cuda_graph`` the mini-batch steps are captured once (at the second update, after Adam made its state) and
-        replayed after."""
+        ``cuda_graph`` the gradient steps run op by op the first time (Adam makes its state), are captured the second
+        time and replayed after."""
         st = self.storage
         batch_size = self.num_mini_batches * (st.num_envs * st.num_transitions_per_env // self.num_mini_batches)
         if self._advantages is None:
@@ -81,19 +83,10 @@ class SyncFreePPO(PPO):
             self._sums = torch.zeros(3, device=self.device)
         self._advantages.copy_(st.advantages)
         self._permutation.copy_(torch.randperm(batch_size, requires_grad=False, device=self.device))
-        if not self.cuda_graph:
+        if self._graph is None:
             self._gradient_steps()
-        elif self._graph is not None:
-            self._graph.replay()
-        elif self._warmed_up:
-            self._graph = torch.cuda.CUDAGraph()
-            self.optimizer.zero_grad(set_to_none=True)
-            with torch.cuda.graph(self._graph):
-                self._gradient_steps()
-            self._graph.replay()
         else:
-            self._gradient_steps()
-            self._warmed_up = True
+            self._graph(self._gradient_steps)
         obs = st.observations.flatten(0, 1)
         self.actor.update_normalization(obs)
         self.critic.update_normalization(obs)

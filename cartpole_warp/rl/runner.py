@@ -27,7 +27,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
-from ..runtime import torch_capture
+from ..runtime import TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .metrics import EpisodeStats, EpisodeSummary, is_solved
@@ -60,8 +60,9 @@ class CartpoleRunner(OnPolicyRunner):
         self.episodes = EpisodeStats(env.device)
         self.stop_reason: str | None = None
         self._stop_requested: str | None = None
-        self._rollout_graph = self._rollout_input = self._rollout_output = None
-        self._rollout_warmed_up = False
+        graphable = cfg.agent.cuda_graph and cfg.console != "rsl_rl" and torch.device(self.device).type == "cuda"
+        self._rollout_graph = TorchGraph(self.device) if graphable else None
+        self._rollout_input: TensorDict | None = None
         self.add_git_repo_to_log(__file__)
 
     @property
@@ -119,22 +120,14 @@ class CartpoleRunner(OnPolicyRunner):
         return obs
 
     def _collect(self, obs: TensorDict) -> TensorDict:
-        """``_rollout``, on a GPU with ``cuda_graph`` captured at the second iteration (the first made the lazily
-        allocated storage) and replayed after; the env's Warp kernels join the capture on torch's stream."""
-        graphable = (self.train_cfg.agent.cuda_graph and self.train_cfg.console != "rsl_rl"
-                     and torch.device(self.device).type == "cuda")
-        if not graphable or self._rollout_graph is None and not self._rollout_warmed_up:
-            self._rollout_warmed_up = True
-            return self._rollout(obs)
+        """``_rollout``; on a GPU with ``cuda_graph``, run op by op the first time (which also makes the lazily
+        allocated storage), captured the second time with the env's Warp kernels, replayed after."""
         if self._rollout_graph is None:
+            return self._rollout(obs)
+        if self._rollout_input is None:
             self._rollout_input = obs.clone()
-            graph = torch.cuda.CUDAGraph()
-            with torch_capture(graph, self.device):
-                self._rollout_output = self._rollout(self._rollout_input)
-            self._rollout_graph = graph
         self._rollout_input.copy_(obs)
-        self._rollout_graph.replay()
-        return self._rollout_output
+        return self._rollout_graph(lambda: self._rollout(self._rollout_input))
 
     def _end_of_iteration(self, it: int, collect_time: float, learn_time: float, loss_dict: dict):
         now = time.perf_counter()

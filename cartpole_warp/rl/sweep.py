@@ -4,8 +4,8 @@
     python -m cartpole_warp.rl.sweep --device cpu --seeds 0 1 2 3 4 \\
         --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
 
-A variant is train.py's flags written ``name=value`` without the dashes, several in one quoted string; a list
-value is comma-separated (``agent.actor.hidden-dims=64,64``).
+A variant is train.py's flags written ``name=value`` (or ``name`` for a switch such as ``agent.no-cuda-graph``)
+without the dashes, several in one quoted string; a list value is comma-separated (``agent.actor.hidden-dims=64,64``).
 
 Per variant: how many seeds solved, the iterations and training seconds to solved (median and worst), env-steps/s
 including PPO, and with ``--play`` the worst fraction of play.py's episodes that reached the time limit.
@@ -28,7 +28,8 @@ import tyro
 @dataclass
 class SweepArgs:
     variants: list[str] = field(default_factory=lambda: ["config=default"])
-    """Settings to measure: train.py flags as name=value pairs, several in one quoted string per variant."""
+    """Settings to measure: train.py flags as name=value pairs (or name for a switch), several in one quoted string
+    per variant."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
     """Seeds to run every variant with."""
     device: str = "cpu"
@@ -58,9 +59,7 @@ def variant_flags(variant: str) -> list[str]:
     flags = []
     for pair in shlex.split(variant):
         name, sep, value = pair.partition("=")
-        if not sep:
-            raise SystemExit(f"error: variant {variant!r}: {pair!r} is not name=value")
-        flags += [f"--{name}", *value.split(",")]
+        flags += [f"--{name}", *(value.split(",") if sep else [])]
     return flags
 
 
