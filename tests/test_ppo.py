@@ -66,3 +66,26 @@ def test_sync_free_ppo_loads_a_ppo_checkpoint_and_keeps_its_rate_tensor(tmp_path
     assert sync_free.alg.optimizer.param_groups[0]["lr"] is sync_free.alg._learning_rate
     collect(sync_free)
     sync_free.alg.update()
+
+
+def test_sync_free_gaussian_samples_the_same_distribution():
+    from rsl_rl.modules.distribution import GaussianDistribution
+
+    from cartpole_warp.rl.ppo import SyncFreeGaussian
+
+    torch.manual_seed(0)
+    ours, theirs = SyncFreeGaussian(1, init_std=0.7), GaussianDistribution(1, init_std=0.7)
+    mean = torch.full((200_000, 1), 0.3)
+    ours.update(mean)
+    theirs.update(mean)
+    samples = ours.sample()
+    assert samples.mean().item() == pytest.approx(0.3, abs=0.01)
+    assert samples.std().item() == pytest.approx(0.7, rel=0.01)
+    torch.testing.assert_close(ours.log_prob(samples), theirs.log_prob(samples))
+    assert ours.sample().shape == theirs.sample().shape == (200_000, 1)
+
+
+def test_sync_free_ppo_samples_with_the_sync_free_gaussian():
+    from cartpole_warp.rl.ppo import SyncFreeGaussian
+
+    assert isinstance(runner_for("SyncFreePPO").alg.actor.distribution, SyncFreeGaussian)

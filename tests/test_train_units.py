@@ -115,12 +115,13 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert cfg["algorithm"]["entropy_coef"] == 0.005
     assert cfg["actor"]["class_name"] == cfg["critic"]["class_name"] == "MLPModel"
     assert cfg["actor"]["hidden_dims"] == [32, 32] and cfg["actor"]["distribution_cfg"] == {
-        "class_name": "GaussianDistribution", "init_std": 1.0}
+        "class_name": "cartpole_warp.rl.ppo:SyncFreeGaussian", "init_std": 1.0}
     assert cfg["num_steps_per_env"] == 12 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
     assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
     assert RunnerConfig(logger="none").to_rsl_rl()["logger"]["class_name"].endswith(":NullLogWriter")
     isaac_lab = train_config("isaac_lab").agent
     assert isaac_lab.to_rsl_rl()["algorithm"]["class_name"] == "PPO"
+    assert isaac_lab.to_rsl_rl()["actor"]["distribution_cfg"]["class_name"] == "GaussianDistribution"
     assert (isaac_lab.num_steps_per_env, isaac_lab.algorithm.num_learning_epochs, isaac_lab.algorithm.num_mini_batches,
             isaac_lab.algorithm.desired_kl) == (16, 5, 4, 0.01)
 

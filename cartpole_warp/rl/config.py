@@ -112,9 +112,9 @@ class RunnerConfig:
     wandb_project: str = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""
     cuda_graph: bool = True
-    """On a GPU, capture one iteration's rollout (and, with SyncFreePPO on one GPU, its update) as CUDA graphs after
-    the first iterations, and replay them: one launch each instead of thousands. Ignored on the CPU and with
-    console 'rsl_rl' (whose per-step bookkeeping reads the device)."""
+    """With SyncFreePPO on a GPU: capture one iteration's rollout and (on one GPU) its update as CUDA graphs after the
+    first iterations and replay them, one launch each instead of thousands. Ignored on the CPU, with rsl-rl's PPO
+    (whose sampling and update read the device) and with console 'rsl_rl' (whose per-step bookkeeping does)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)
@@ -124,11 +124,12 @@ class RunnerConfig:
         cfg = dataclasses.asdict(self)
         for key in ("max_iterations", "experiment_name", "wandb_project", "cuda_graph"):
             del cfg[key]
+        cfg["actor"]["class_name"] = "MLPModel"
+        cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
         if self.algorithm.class_name == "SyncFreePPO":
             cfg["algorithm"]["class_name"] = "cartpole_warp.rl.ppo:SyncFreePPO"
             cfg["algorithm"]["cuda_graph"] = self.cuda_graph
-        cfg["actor"]["class_name"] = "MLPModel"
-        cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
+            cfg["actor"]["distribution_cfg"]["class_name"] = "cartpole_warp.rl.ppo:SyncFreeGaussian"
         cfg["critic"]["class_name"] = "MLPModel"
         cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
         if self.logger == "wandb":

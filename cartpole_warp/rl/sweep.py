@@ -1,5 +1,5 @@
-"""Time to a solved policy, over training settings and seeds: each run is ``python -m cartpole_warp.train`` with
-``--stop-when-solved`` (optionally followed by ``play --headless``), and the table says what each setting costs.
+"""Time to a solved policy, over training settings and seeds: each run is ``python -m cartpole_warp.train`` (optionally
+followed by ``play --headless`` on its final policy), and the table says what each setting costs.
 
     python -m cartpole_warp.rl.sweep --device cpu --seeds 0 1 2 3 4 \\
         --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
@@ -40,6 +40,9 @@ class SweepArgs:
     """Give up after this many iterations."""
     play: bool = False
     """Also run play.py --headless on each result (256 envs, one time limit)."""
+    stop_when_solved: bool = False
+    """End each run when solved (quicker to screen settings); by default runs go on to max_iterations, as
+    train.py does, and play judges the final policy."""
     log_dir: Path | None = None
     """Keep the runs here (default: a temporary folder)."""
 
@@ -66,8 +69,8 @@ def variant_flags(variant: str) -> list[str]:
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     """One training run (and play) in a subprocess; its summary.json is the result."""
     flags = [*variant_flags(variant), "--seed", str(seed), "--device", args.device, "--num-envs", str(args.num_envs),
-             "--max-iterations", str(args.max_iterations), "--stop-when-solved", "--logger", "none",
-             "--log-dir", str(log_dir)]
+             "--max-iterations", str(args.max_iterations), "--logger", "none", "--log-dir", str(log_dir),
+             *(["--stop-when-solved"] if args.stop_when_solved else [])]
     done = subprocess.run([sys.executable, "-m", "cartpole_warp.train", *flags], capture_output=True, text=True)
     if done.returncode != 0:
         raise RuntimeError(f"train.py {' '.join(flags)} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
