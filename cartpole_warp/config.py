@@ -122,11 +122,12 @@ class EnvConfig:
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
     num_envs: Annotated[int, tyro.conf.arg(aliases=("--num-envs",))] = 4096
-    """Number of cartpoles simulated in parallel."""
+    """Number of cartpoles simulated in parallel (per GPU when torchrun starts several processes)."""
     device: Annotated[str, tyro.conf.arg(aliases=("--device",))] = "cpu"
-    """Warp / torch device: 'cpu', 'cuda' or 'cuda:N'."""
+    """Warp / torch device: 'cpu', 'cuda' or 'cuda:N' (under torchrun each process takes cuda:$LOCAL_RANK)."""
     seed: Annotated[int, tyro.conf.arg(aliases=("--seed",))] = 0
-    """Seed of the per-env reset RNG (and of torch in train.py); the same seed gives the same trajectory."""
+    """Seed of the per-env reset RNG (and of torch in train.py; seed + rank under torchrun); the same seed gives the
+    same trajectory."""
     sim: SimConfig = field(default_factory=SimConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
 

@@ -4,6 +4,7 @@
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point
     python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help lists them all
+    torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096   # 2 GPUs, 4096 envs on each
 
 Each run folder holds config.yaml, model_<iteration>.pt, TensorBoard events, exported/policy.{onnx,pt},
 learning_curve.png and summary.json. Ctrl-C stops after the current iteration and saves.
@@ -22,6 +23,7 @@ import tyro
 from .cli import asks_help, clean_errors, parse, peek, quiet_libraries, with_default_value
 from .config import ConfigError
 from .rl.config import TrainConfig, train_config
+from .rl.distributed import Ranks
 from .rl.metrics import SOLVED_LENGTH_FRACTION, SOLVED_REWARD_PER_STEP
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
 from .scene import StageError
@@ -67,16 +69,27 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, RunError, StageError):
+        ranks = Ranks.from_environment()
         cfg, run_dir, checkpoint = resolve(sys.argv[1:] if argv is None else argv)
+        import torch
+
         from .rl.training import Training
 
-        print(f"run folder: {run_dir}" + (f" (resuming from {checkpoint.name})" if checkpoint else ""))
-        print(f"building {cfg.env.num_envs} envs on {cfg.env.device} (the first run compiles Warp kernels, ~1 min)...",
-              flush=True)
-        training = Training(cfg, run_dir, resume_from=checkpoint)
-        print(f"ready in {training.setup_time_s:.1f} s; solved = mean episode length >= {SOLVED_LENGTH_FRACTION:.0%} "
-              f"of {training.max_episode_length} steps and reward/step >= {SOLVED_REWARD_PER_STEP}", flush=True)
-        summary = training.run()
+        say = print if ranks.writes else (lambda *args, **kwargs: None)
+        say(f"run folder: {run_dir}" + (f" (resuming from {checkpoint.name})" if checkpoint else ""))
+        where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
+        say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)
+        try:
+            training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks)
+            say(f"ready in {training.setup_time_s:.1f} s; solved = mean episode length >= "
+                f"{SOLVED_LENGTH_FRACTION:.0%} of {training.max_episode_length} steps and reward/step >= "
+                f"{SOLVED_REWARD_PER_STEP}", flush=True)
+            summary = training.run()
+        finally:
+            if torch.distributed.is_initialized():
+                torch.distributed.destroy_process_group()
+    if summary is None:
+        return 130 if training.runner.stop_reason == "interrupted" else 0
     print(f"{summary.status}: {summary.iterations} iterations, {summary.env_steps:,} env steps in "
           f"{summary.train_time_s:.1f} s ({summary.env_steps_per_s:,} steps/s)")
     if summary.solved_at:

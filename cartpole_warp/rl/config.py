@@ -112,8 +112,8 @@ class RunnerConfig:
     wandb_project: str = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""
     cuda_graph: bool = True
-    """With SyncFreePPO on a GPU: capture one iteration's rollout and (on one GPU) its update as CUDA graphs after the
-    first iterations and replay them, one launch each instead of thousands. Ignored on the CPU, with rsl-rl's PPO
+    """With SyncFreePPO on a GPU: capture one iteration's rollout and its update as CUDA graphs after the first
+    iterations and replay them, one launch each instead of thousands. Ignored on the CPU, with rsl-rl's PPO
     (whose sampling and update read the device) and with console 'rsl_rl' (whose per-step bookkeeping does)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)

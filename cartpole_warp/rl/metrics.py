@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import torch
 
+from .distributed import all_reduce_sum
+
 SOLVED_LENGTH_FRACTION = 0.95
 """Solved needs a mean episode length of at least this fraction of the time limit ..."""
 SOLVED_REWARD_PER_STEP = 0.9
@@ -56,8 +58,10 @@ class EpisodeStats:
             return EpisodeSummary(0, None, None, None, None)
         return EpisodeSummary(int(count), returns / count, lengths / count, per_step / count, timed_out / count)
 
-    def pop(self) -> EpisodeSummary:
-        """The summary so far; then start afresh."""
+    def pop(self, all_processes: bool = False) -> EpisodeSummary:
+        """The summary so far (``all_processes``: over the episodes of every process of a torchrun job); then start
+        afresh."""
+        all_reduce_sum(self._sums, all_processes)
         result = self.summary()
         self._sums.zero_()
         return result

@@ -30,6 +30,7 @@ from tensordict import TensorDict
 from ..runtime import TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
+from .distributed import STOP_REASONS, all_reduce_max, stop_code
 from .metrics import EpisodeStats, EpisodeSummary, is_solved
 from .rollout import Policy
 from .runs import Progress, RunError, atomic_write
@@ -71,7 +72,8 @@ class CartpoleRunner(OnPolicyRunner):
         return Path(self.logger.log_dir) if self.logger.log_dir is not None else None
 
     def request_stop(self, reason: str = "interrupted"):
-        """End ``learn`` after the iteration in progress (which is saved)."""
+        """End ``learn`` after the iteration in progress (which is saved); in a torchrun job every process stops
+        after that same iteration."""
         self._stop_requested = reason
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
@@ -133,8 +135,8 @@ class CartpoleRunner(OnPolicyRunner):
     def _end_of_iteration(self, it: int, collect_time: float, learn_time: float, loss_dict: dict):
         now = time.perf_counter()
         iteration_time, self._tick = now - self._tick, now
-        steps = self.env.num_envs * self.cfg["num_steps_per_env"]
-        stats = self.episodes.pop()
+        steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.gpu_world_size
+        stats = self.episodes.pop(all_processes=self.is_distributed)
         solved = is_solved(stats.mean_length, stats.mean_reward_per_step, self.env.max_episode_length)
         p = self.progress
         p.iterations, p.env_steps, p.train_time_s = it + 1, p.env_steps + steps, p.train_time_s + iteration_time
@@ -147,13 +149,12 @@ class CartpoleRunner(OnPolicyRunner):
                             collect_time=collect_time, learn_time=learn_time, loss_dict=loss_dict,
                             learning_rate=self.alg.learning_rate, action_std=self.alg.get_policy().output_std,
                             rnd_weight=None)
-        else:
+        elif self.gpu_global_rank == 0:
             self._write_metrics(it, stats, loss_dict, steps / iteration_time, collect_time, learn_time)
             print(self._progress_line(it, stats, steps / iteration_time, solved, now), flush=True)
-        if self._stop_requested:
-            self.stop_reason = self._stop_requested
-        elif solved and self.train_cfg.stop_when_solved:
-            self.stop_reason = "solved"
+        wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
+        code = all_reduce_max(torch.tensor([stop_code(wanted)], device=self.device), self.is_distributed)
+        self.stop_reason = STOP_REASONS[int(code.item())]
 
     def _write_metrics(self, it: int, stats: EpisodeSummary, loss_dict: dict, steps_per_s: float,
                        collect_time: float, learn_time: float):

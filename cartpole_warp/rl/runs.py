@@ -162,6 +162,9 @@ class RunSummary:
     solved_at: dict | None
     solved_definition: str
     num_envs: int
+    """Envs of all processes together."""
+    processes: int
+    """Processes (GPUs) of a torchrun job; 1 otherwise."""
     device: str
     checkpoint: str
     exports: list[str]

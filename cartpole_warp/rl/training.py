@@ -7,6 +7,7 @@ folder's artefacts (config, checkpoints, exports, learning curve, ``summary.json
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import signal
 import time
@@ -19,6 +20,7 @@ from ..env import CartpoleEnv
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .curve import plot_learning_curve
+from .distributed import SINGLE_PROCESS, Ranks
 from .metrics import SOLVED_LENGTH_FRACTION, SOLVED_REWARD_PER_STEP
 from .runner import CartpoleRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_config
@@ -29,22 +31,27 @@ SOLVED_DEFINITION = (f"mean episode length >= {SOLVED_LENGTH_FRACTION:.0%} of th
 
 class Training:
     """A run in ``run_dir`` (created, with its ``config.yaml``, only once the env is built and a checkpoint to resume
-    from is loaded)."""
+    from is loaded). In a torchrun job (``ranks``) each process trains its own envs on its own GPU with seed + rank,
+    and rank 0 alone writes the run folder."""
 
-    def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None):
+    def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None,
+                 ranks: Ranks = SINGLE_PROCESS):
         self.cfg = cfg.validate()
         if cfg.agent.logger == "wandb" and importlib.util.find_spec("wandb") is None:
             raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
-        self.run_dir = Path(run_dir)
+        self.run_dir, self.ranks = Path(run_dir), ranks
         start = time.perf_counter()
-        torch.manual_seed(cfg.env.seed)
+        env_cfg = ranks.env_config(cfg.env, torch.cuda.device_count())
+        torch.manual_seed(env_cfg.seed)
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
-        self.env = RslRlVecEnv(CartpoleEnv(cfg.env))
-        self.runner = CartpoleRunner(self.env, cfg, self.run_dir)
+        self.env = RslRlVecEnv(CartpoleEnv(env_cfg))
+        self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
+                                     self.run_dir if ranks.writes else None)
         if resume_from is not None:
             self.runner.load(str(resume_from))
-        save_config(self.run_dir, cfg)
+        if ranks.writes:
+            save_config(self.run_dir, cfg)
         self.setup_time_s = time.perf_counter() - start
         self._interrupts = 0
 
@@ -53,21 +60,26 @@ class Training:
         """The env's time limit in env steps."""
         return self.env.max_episode_length
 
-    def _on_sigint(self, signum, frame):
+    def _on_signal(self, signum, frame):
         self._interrupts += 1
         if self._interrupts > 1:
             raise KeyboardInterrupt
         self.runner.request_stop("interrupted")
-        print("\nCtrl-C: stopping after this iteration and saving (press again to abort without saving)", flush=True)
+        if self.ranks.writes:
+            print("\nstopping after this iteration and saving (Ctrl-C again aborts without saving)", flush=True)
 
-    def run(self) -> RunSummary:
-        """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or, with stop_when_solved, once solved); then
-        export the policy, draw the learning curve and write ``summary.json``."""
-        previous = signal.signal(signal.SIGINT, self._on_sigint)
+    def run(self) -> RunSummary | None:
+        """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or SIGTERM, which torchrun sends its processes,
+        or, with stop_when_solved, once solved); then export the policy, draw the learning curve and write
+        ``summary.json``, and return it (None in the processes that do not write)."""
+        previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             self.runner.learn(self.cfg.agent.max_iterations)
         finally:
-            signal.signal(signal.SIGINT, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        if not self.ranks.writes:
+            return None
         progress = self.runner.progress
         exports = self.runner.export(self.run_dir / EXPORT_DIR) if progress.iterations else []
         self.plot()
@@ -87,7 +99,8 @@ class Training:
             solved=progress.solved_at is not None,
             solved_at=progress.solved_at,
             solved_definition=SOLVED_DEFINITION,
-            num_envs=self.cfg.env.num_envs,
+            num_envs=self.cfg.env.num_envs * self.ranks.world_size,
+            processes=self.ranks.world_size,
             device=self.env.device,
             checkpoint=latest_checkpoint(self.run_dir).name,
             exports=[str(e.relative_to(self.run_dir)) for e in exports],

@@ -1,0 +1,92 @@
+"""Training on several GPUs, started by torchrun: which GPU and seed each process takes, who writes, and decisions
+all processes take together.
+
+    torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096      # 4096 envs on each GPU
+
+rsl-rl does the data-parallel PPO itself (``OnPolicyRunner`` reads ``WORLD_SIZE``/``RANK``/``LOCAL_RANK``, creates the
+NCCL process group, broadcasts the parameters from rank 0, all-reduces the gradients); this module adds the rest:
+``cuda:$LOCAL_RANK`` and seed + rank per process, one run folder written by rank 0 alone, episode statistics summed
+over all processes, and one stop decision for all of them.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import torch
+
+from ..config import ConfigError, EnvConfig
+
+STOP_REASONS = (None, "solved", "interrupted")
+"""Stop decisions by code; the all-reduce takes the largest, so an interruption anywhere wins over solved."""
+
+
+@dataclass(frozen=True)
+class Ranks:
+    """This process's place in a torchrun job; one process alone when not started by torchrun."""
+
+    world_size: int = 1
+    rank: int = 0
+    local_rank: int = 0
+
+    @classmethod
+    def from_environment(cls, environ: Mapping[str, str] = os.environ) -> Ranks:
+        """From torchrun's ``WORLD_SIZE``, ``RANK`` and ``LOCAL_RANK``."""
+        try:
+            return cls(int(environ.get("WORLD_SIZE", "1")), int(environ.get("RANK", "0")),
+                       int(environ.get("LOCAL_RANK", "0")))
+        except ValueError:
+            raise ConfigError("WORLD_SIZE, RANK and LOCAL_RANK must be integers (torchrun sets them)") from None
+
+    @property
+    def distributed(self) -> bool:
+        return self.world_size > 1
+
+    @property
+    def writes(self) -> bool:
+        """Whether this process writes the run folder and prints progress: rank 0 alone."""
+        return self.rank == 0
+
+    def env_config(self, env: EnvConfig, cuda_devices: int) -> EnvConfig:
+        """``env`` for this process: on ``cuda:$LOCAL_RANK`` with seed + rank when distributed, else unchanged.
+        ConfigError for a CPU device or more processes on this host than it has GPUs."""
+        if not self.distributed:
+            return env
+        if not env.device.startswith("cuda"):
+            raise ConfigError(f"training on {self.world_size} processes (torchrun) needs --device cuda, got "
+                              f"{env.device!r}; run a single process for the CPU")
+        if self.local_rank >= cuda_devices:
+            raise ConfigError(f"process {self.local_rank} of this host needs cuda:{self.local_rank}, but the host has "
+                              f"{cuda_devices} CUDA device(s): start at most {cuda_devices} processes per node")
+        return EnvConfig(num_envs=env.num_envs, device=f"cuda:{self.local_rank}", seed=env.seed + self.rank,
+                         sim=env.sim, task=env.task)
+
+
+SINGLE_PROCESS = Ranks()
+"""A process not started by torchrun."""
+
+
+def stop_code(reason: str | None) -> int:
+    """The code of a stop reason (``STOP_REASONS``)."""
+    return STOP_REASONS.index(reason)
+
+
+def joint_stop(codes: list[int]) -> str | None:
+    """The decision of all processes from each one's stop code: the largest (what the all-reduce computes)."""
+    return STOP_REASONS[max(codes)]
+
+
+def all_reduce_sum(values: torch.Tensor, distributed: bool) -> torch.Tensor:
+    """``values`` summed over all processes, in place (nothing to do for one process)."""
+    if distributed:
+        torch.distributed.all_reduce(values, op=torch.distributed.ReduceOp.SUM)
+    return values
+
+
+def all_reduce_max(values: torch.Tensor, distributed: bool) -> torch.Tensor:
+    """``values`` maximised over all processes, in place (nothing to do for one process)."""
+    if distributed:
+        torch.distributed.all_reduce(values, op=torch.distributed.ReduceOp.MAX)
+    return values

@@ -1,0 +1,83 @@
+"""Multi-GPU training without GPUs: which device and seed each torchrun process takes, that only rank 0 writes, the
+joint stop decision and the summed statistics (real all-reduces over two CPU processes with gloo), the errors."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+import torch.distributed
+import torch.multiprocessing
+
+from cartpole_warp.config import ConfigError, EnvConfig
+from cartpole_warp.rl.config import TrainConfig
+from cartpole_warp.rl.distributed import Ranks, all_reduce_max, all_reduce_sum, joint_stop, stop_code
+from cartpole_warp.rl.metrics import EpisodeStats
+from cartpole_warp.rl.training import Training
+
+
+def test_ranks_come_from_torchrun_variables():
+    assert Ranks.from_environment({}) == Ranks(1, 0, 0) and not Ranks().distributed and Ranks().writes
+    ranks = Ranks.from_environment({"WORLD_SIZE": "4", "RANK": "3", "LOCAL_RANK": "1"})
+    assert ranks == Ranks(4, 3, 1) and ranks.distributed and not ranks.writes
+    with pytest.raises(ConfigError, match="must be integers"):
+        Ranks.from_environment({"WORLD_SIZE": "two"})
+
+
+def test_each_process_takes_its_gpu_and_seed_plus_rank():
+    env = EnvConfig(num_envs=4096, device="cuda", seed=7)
+    mine = Ranks(4, 3, 1).env_config(env, cuda_devices=2)
+    assert (mine.device, mine.seed, mine.num_envs) == ("cuda:1", 10, 4096)
+    assert Ranks(2, 0, 0).env_config(env, cuda_devices=2).seed == 7
+    assert Ranks().env_config(env, cuda_devices=0) is env, "one process keeps its config"
+    with pytest.raises(ConfigError, match="needs --device cuda"):
+        Ranks(2, 0, 0).env_config(EnvConfig(device="cpu"), cuda_devices=2)
+    with pytest.raises(ConfigError, match="host has 2 CUDA device"):
+        Ranks(4, 2, 2).env_config(env, cuda_devices=2)
+
+
+def test_the_joint_stop_is_the_strongest_wish():
+    assert joint_stop([stop_code(None), stop_code(None)]) is None
+    assert joint_stop([stop_code("solved"), stop_code("solved")]) == "solved"
+    assert joint_stop([stop_code(None), stop_code("interrupted")]) == "interrupted"
+    assert joint_stop([stop_code("solved"), stop_code("interrupted")]) == "interrupted"
+
+
+def _two_processes(rank, store, results):
+    torch.distributed.init_process_group("gloo", init_method=f"file://{store}", rank=rank, world_size=2)
+    stats = EpisodeStats()
+    ended = torch.tensor([True, rank == 1])
+    stats.add(ended, torch.tensor([10.0 * (rank + 1), 30.0]), torch.tensor([10, 30]), torch.tensor([False, True]))
+    summary = stats.pop(all_processes=True)
+    code = all_reduce_max(torch.tensor([stop_code("interrupted" if rank == 1 else None)]), True)
+    total = all_reduce_sum(torch.tensor([float(rank + 1)]), True)
+    results[rank] = (summary.episodes, summary.mean_return, joint_stop([int(code.item())]), total.item())
+    torch.distributed.destroy_process_group()
+
+
+def test_statistics_and_stop_are_reduced_over_processes(tmp_path):
+    results = torch.multiprocessing.Manager().dict()
+    torch.multiprocessing.spawn(_two_processes, args=(str(tmp_path / "store"), results), nprocs=2)
+    # rank 0 ended one episode (return 10), rank 1 two (returns 20 and 30): 3 episodes, mean 20, on both ranks
+    assert results[0] == results[1] == (3, 20.0, "interrupted", 3.0)
+
+
+def test_only_rank_zero_writes_the_run(tmp_path):
+    cfg = TrainConfig()
+    cfg.env.num_envs, cfg.agent.max_iterations = 64, 1
+    run_dir = tmp_path / "run"
+    summary = Training(cfg, run_dir, ranks=Ranks(world_size=1, rank=1)).run()
+    assert summary is None and not run_dir.exists()
+    assert Training(cfg, run_dir).run().iterations == 1 and (run_dir / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("variables, flags, message", [
+    ({"WORLD_SIZE": "2", "RANK": "0", "LOCAL_RANK": "0"}, ["--device", "cpu"], "needs --device cuda"),
+    ({"WORLD_SIZE": "16", "RANK": "15", "LOCAL_RANK": "15"}, ["--device", "cuda"], "start at most"),
+])
+def test_torchrun_errors_are_one_line(repo, tmp_path, variables, flags, message):
+    result = subprocess.run([sys.executable, str(repo / "train.py"), "--num-envs", "64", "--log-dir", str(tmp_path),
+                             *flags], env={**os.environ, **variables}, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "rsl_rl").exists()
