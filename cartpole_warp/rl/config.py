@@ -112,9 +112,10 @@ class RunnerConfig:
     wandb_project: str = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""
     cuda_graph: bool = True
-    """With SyncFreePPO on a GPU: capture one iteration's rollout and its update as CUDA graphs after the first
-    iterations and replay them, one launch each instead of thousands. Ignored on the CPU, with rsl-rl's PPO
-    (whose sampling and update read the device) and with console 'rsl_rl' (whose per-step bookkeeping does)."""
+    """With SyncFreePPO on one GPU: capture one iteration's rollout and its update as CUDA graphs after the first
+    iterations and replay them, one launch each instead of thousands. Ignored on the CPU, under torchrun (a 2-GPU run
+    with graphs hung at its end), with rsl-rl's PPO (whose sampling and update read the device) and with console
+    'rsl_rl' (whose per-step bookkeeping does)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)

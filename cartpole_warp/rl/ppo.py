@@ -42,8 +42,9 @@ class SyncFreePPO(PPO):
         super().__init__(actor, critic, storage, *args, **kwargs)
         if self.rnd or self.symmetry or actor.is_recurrent or critic.is_recurrent:
             raise ValueError("SyncFreePPO supports feed-forward actor and critic without RND or symmetry; use PPO")
-        self.cuda_graph = cuda_graph and torch.device(self.device).type == "cuda"
-        """Capture the update's gradient steps (with their NCCL all-reduces under torchrun) as one CUDA graph."""
+        self.cuda_graph = cuda_graph and torch.device(self.device).type == "cuda" and not self.is_multi_gpu
+        """Capture the update's gradient steps as one CUDA graph (one GPU: under torchrun, a run whose graphs held
+        NCCL all-reduces hung at its end on the 2-GPU machine)."""
         self.optimizer = torch.optim.Adam(chain(self.actor.parameters(), self.critic.parameters()),
                                           lr=self._learning_rate, fused=True, capturable=self.cuda_graph)
         self._graph = TorchGraph(self.device) if self.cuda_graph else None

@@ -62,7 +62,8 @@ class CartpoleRunner(OnPolicyRunner):
         self.stop_reason: str | None = None
         self._stop_requested: str | None = None
         graphable = (cfg.agent.cuda_graph and cfg.agent.algorithm.class_name == "SyncFreePPO"
-                     and cfg.console != "rsl_rl" and torch.device(self.device).type == "cuda")
+                     and not self.is_distributed and cfg.console != "rsl_rl"
+                     and torch.device(self.device).type == "cuda")
         self._rollout_graph = TorchGraph(self.device) if graphable else None
         self._rollout_input: TensorDict | None = None
         self.add_git_repo_to_log(__file__)

@@ -36,8 +36,8 @@ class SweepArgs:
     """Device of every run."""
     num_envs: int = 4096
     """Envs of every run."""
-    max_iterations: int = 150
-    """Give up after this many iterations."""
+    max_iterations: int | None = None
+    """Iterations of every run (default: the variant's own, 150 for the default settings)."""
     play: bool = False
     """Also run play.py --headless on each result (256 envs, one time limit)."""
     stop_when_solved: bool = False
@@ -69,7 +69,8 @@ def variant_flags(variant: str) -> list[str]:
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     """One training run (and play) in a subprocess; its summary.json is the result."""
     flags = [*variant_flags(variant), "--seed", str(seed), "--device", args.device, "--num-envs", str(args.num_envs),
-             "--max-iterations", str(args.max_iterations), "--logger", "none", "--log-dir", str(log_dir),
+             *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
+             "--logger", "none", "--log-dir", str(log_dir),
              *(["--stop-when-solved"] if args.stop_when_solved else [])]
     done = subprocess.run([sys.executable, "-m", "cartpole_warp.train", *flags], capture_output=True, text=True)
     if done.returncode != 0:
