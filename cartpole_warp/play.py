@@ -42,11 +42,14 @@ class PlayArgs:
     config: str = "default"
     """Preset of the env for --agent zero|random, or for a checkpoint outside a run folder."""
     headless: bool = False
-    """No window: print statistics, write <output>/cartpole.gif, cartpole.usda and result.json."""
+    """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda
+    and result.json."""
     export: bool = False
     """Write <run>/exported/policy.onnx and policy.pt."""
     steps: int | None = None
     """Env steps to run (default: the time limit, or 1000 without one; in the viewer: until its window closes)."""
+    video_length: int | None = None
+    """Env steps of env 0 in the MP4 (default: all the steps run); its frame rate is one frame per env step."""
     output: Path | None = None
     """Folder for the GIF, USD and result (default <run>/play, or <log-dir>/play/<agent>)."""
 
@@ -73,6 +76,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
             f"--agent {args.agent} takes no --run, --checkpoint or --export")
     require(args.steps is None or args.steps >= 1, f"--steps must be >= 1, got {args.steps}")
+    require(args.video_length is None or args.video_length >= 1,
+            f"--video-length must be >= 1, got {args.video_length}")
     cfg.env = args.env
     return args, cfg.validate(), checkpoint
 
@@ -124,16 +129,16 @@ def play(argv: list[str]) -> int:
             steps = view_interactively(env, policy, max_steps=args.steps)
             print(f"viewer closed after {steps} env steps")
             return 0
-        from .viz.record import Recorder
+        from .viz.record import VIDEO_EXTRA, Recorder, video_available
 
         has_limit = cfg.env.task.episode_length_s is not None
         steps = args.steps or (env.max_episode_length if has_limit else NO_LIMIT_STEPS)
         output = args.output or (checkpoint.parent if checkpoint else Path(args.log_dir)) / PLAY_DIR
         if not (args.output or checkpoint):
             output = output / args.agent
-        recorder = Recorder(env.scene, env.env_dt, output / "cartpole.gif", output / "cartpole.usda")
+        recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length)
         stats = rollout(env, policy, steps, on_step=recorder)
-        gif, usd = recorder.close()
+        pictures = recorder.close()
         limit = (f"the {cfg.env.task.episode_length_s:g} s time limit" if has_limit and steps >= env.max_episode_length
                  else f"the {steps}-step cap")
         print(f"{stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
@@ -143,7 +148,9 @@ def play(argv: list[str]) -> int:
                   "steps": steps, "episodes": stats.episodes, "mean_return": stats.mean_return,
                   "mean_episode_length": stats.mean_length, "time_limit_fraction": stats.time_limit_fraction}
         result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
-        print(f"wrote {gif}, {usd} (open with usdview) and {result_file}")
+        print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
+        if not video_available():
+            print(f"no MP4: {VIDEO_EXTRA} adds it")
     return 0
 
 

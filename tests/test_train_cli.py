@@ -80,6 +80,7 @@ def test_train_writes_every_artefact(trained):
 def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     log_dir, run, _ = trained
     result = run_script("play.py", "--headless", "--log-dir", log_dir, "--num-envs", "8", "--steps", "40")
+    assert "cartpole.mp4" in result.stdout
     assert result.returncode == 0, result.stdout + result.stderr
     assert re.search(r"8 episodes .* mean return -?\d+\.\d+, mean length \d+\.\d steps .* reached .*: \d+\.\d%",
                      result.stdout), result.stdout
@@ -89,6 +90,11 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     assert gif.format == "GIF" and gif.n_frames == 21
     gif.seek(10)
     gif.convert("RGB").load()
+    import imageio.v2 as imageio
+
+    video = imageio.get_reader(run / "play" / "cartpole.mp4")
+    frames = [frame for frame in video]  # list() asks the reader's length, which is infinite
+    assert len(frames) == 41 and video.get_meta_data()["fps"] == 60 and frames[0].ndim == 3
 
     from pxr import Usd, UsdGeom
 
@@ -150,10 +156,13 @@ def test_play_without_a_display_suggests_headless(tmp_path):
 
 def test_play_zero_agent_needs_no_checkpoint(tmp_path):
     result = run_script("play.py", "--agent", "zero", "--headless", "--log-dir", tmp_path, "--num-envs", "4",
-                        "--steps", "300")
+                        "--steps", "300", "--video-length", "25")
     assert result.returncode == 0, result.stderr
     record = json.loads((tmp_path / "play" / "zero" / "result.json").read_text())
     assert record["episodes"] == 4 and record["time_limit_fraction"] == 0.0, "an unpushed pole must fall"
+    import imageio.v2 as imageio
+
+    assert sum(1 for _ in imageio.get_reader(tmp_path / "play" / "zero" / "cartpole.mp4")) == 25
 
 
 def test_help_documents_flags_and_config_fields():

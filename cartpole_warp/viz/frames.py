@@ -1,12 +1,15 @@
-"""A GIF side view of one env, drawn with Pillow (no GL, no display).
+"""Side views of single envs drawn with Pillow (no GL, no display): GIF frames, video frames and the ``rgb_array``
+frames of the gymnasium and SB3 wrappers, all from one renderer.
 
-Geometry comes from the Newton model (box shapes, their body, size, offset and colour), motion from body
-transforms recorded per env step (``Geometry.body_transforms``), so nothing here knows cartpole dimensions.
+Geometry comes from the Newton model (box shapes, their body, size, offset and colour; the model's up axis is up,
+the rail's long axis runs to the right), motion from body transforms (``Geometry.body_transforms``), so nothing here
+knows cartpole dimensions.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +18,7 @@ import numpy as np
 import warp as wp
 from PIL import Image, ImageDraw, ImageFont
 
+from ..env import CartpoleEnv
 from ..rl.runs import atomic_write
 
 BACKGROUND = (250, 250, 250)
@@ -59,19 +63,30 @@ class Geometry:
                 continue
             parts = model.shape_label[s].strip("/").split("/")
             body = body_index.get(int(shape_body[s]), -1)
-            self.boxes.append(Box(name=parts[-2] if body < 0 and len(parts) > 1 else parts[-1], body=body,
+            name = self.body_names[body] if body >= 0 else parts[-2] if len(parts) > 1 else parts[-1]
+            self.boxes.append(Box(name=name, body=body,
                                   half_extents_m=scales[s].astype(np.float64),
                                   local_transform=transforms[s].astype(np.float64),
                                   color_srgb=tuple(float(c) for c in colors[s])))
-        mask = np.zeros(model.articulation_count, dtype=bool)
-        articulation_world = model.articulation_world.numpy()
-        mask[articulation_world == world] = True
-        self._fk_mask = wp.array(mask, dtype=wp.bool, device=model.device)
+        self._fk_mask = wp.array(model.articulation_world.numpy() == world, dtype=wp.bool, device=model.device)
+        up = int(model.up_axis)
+        widest = max(self.boxes, key=lambda box: box.half_extents_m.max(), default=None)
+        across = [axis for axis in (0, 1, 2) if axis != up]
+        if widest is not None:
+            extent = np.abs(_quat_rotate(widest.local_transform[3:], np.diag(widest.half_extents_m))).sum(axis=0)
+            across.sort(key=lambda axis: -extent[axis])
+        self.view_axes = (across[0], up)
+        """World axes drawn to the right (the widest box's long axis: the rail) and upwards (the model's up axis)."""
 
     def body_transforms(self, state: newton.State) -> np.ndarray:
         """(bodies, 7) world transforms of the env's bodies, from the state's joint coordinates."""
         newton.eval_fk(self.model, state.joint_q, state.joint_qd, state, mask=self._fk_mask)
         return state.body_q.numpy()[self.body_ids].astype(np.float64)
+
+    def outlines(self, transforms: np.ndarray) -> list[tuple[Box, np.ndarray]]:
+        """Each box with its corners (8, 2) in view coordinates (right, up; m) for body ``transforms``."""
+        return [(box, self.box_corners(box, transforms[box.body] if box.body >= 0 else None)[:, self.view_axes])
+                for box in self.boxes]
 
     def box_corners(self, box: Box, body_transform: np.ndarray | None) -> np.ndarray:
         """(8, 3) world corners of ``box`` given its body's transform (None for a static box)."""
@@ -102,37 +117,84 @@ def _convex_hull(points: np.ndarray) -> list[tuple[float, float]]:
     return lower[:-1] + upper[:-1]
 
 
-def write_gif(path: Path, geometry: Geometry, frames: np.ndarray, env_dt: float, width_px: int = 800,
-              frame_stride: int = 2) -> Path:
-    """Side view (the rail's Y axis to the right, Z up) of ``frames`` (T, bodies, 7) as an animated GIF."""
-    frames = frames[::frame_stride]
-    polygons = []
-    for transforms in frames:
-        polygons.append([(box, geometry.box_corners(box, transforms[box.body] if box.body >= 0 else None)[:, 1:])
-                         for box in geometry.boxes])
-    everything = np.concatenate([corners for frame in polygons for _, corners in frame])
-    low, high = everything.min(axis=0), everything.max(axis=0)
-    margin = 0.05 * (high - low).max()
-    low, high = low - margin, high + margin
-    scale = width_px / (high[0] - low[0])
-    height_px = max(1, int(math.ceil((high[1] - low[1]) * scale)) + 24)
-    font = ImageFont.load_default(size=14)
+class SideView:
+    """Draws the boxes of one env inside fixed bounds (view coordinates, m) at ``width_px``; the height follows the
+    bounds' aspect, both rounded to even pixels (video encoders need them)."""
 
-    def to_px(yz):
-        return [((y - low[0]) * scale, height_px - (z - low[1]) * scale) for y, z in yz]
+    def __init__(self, geometry: Geometry, low: np.ndarray, high: np.ndarray, width_px: int = 640):
+        self.geometry, self.low = geometry, low
+        self.scale = width_px / (high[0] - low[0])
+        self.size = (width_px // 2 * 2, int(math.ceil((high[1] - low[1]) * self.scale / 2)) * 2)
+        self.font = ImageFont.load_default(size=14)
 
-    images = []
-    for i, frame in enumerate(polygons):
-        image = Image.new("RGB", (width_px, height_px), BACKGROUND)
+    @classmethod
+    def around(cls, geometry: Geometry, frames: Sequence[np.ndarray], width_px: int = 640,
+               reach: bool = False) -> SideView:
+        """Bounds holding the boxes in every one of ``frames`` (body transforms), with a 5% margin; ``reach`` also
+        holds the moving boxes turned upside down (for live frames, whose future poses are unknown)."""
+        corners = np.concatenate([c for transforms in frames for _, c in geometry.outlines(transforms)])
+        low, high = corners.min(axis=0), corners.max(axis=0)
+        if reach:
+            moving = np.concatenate([c for transforms in frames for box, c in geometry.outlines(transforms)
+                                     if box.body >= 0])
+            static = [c for box, c in geometry.outlines(frames[0]) if box.body < 0]
+            center = np.concatenate(static).mean(axis=0)[1] if static else moving[:, 1].mean()
+            span = np.abs(moving[:, 1] - center).max()
+            low[1], high[1] = min(low[1], center - span), max(high[1], center + span)
+        margin = 0.05 * (high - low).max()
+        return cls(geometry, low - margin, high + margin, width_px)
+
+    def image(self, transforms: np.ndarray, caption: str | None = None) -> Image.Image:
+        """The env drawn for body ``transforms`` (bodies, 7)."""
+        width, height = self.size
+        image = Image.new("RGB", self.size, BACKGROUND)
         draw = ImageDraw.Draw(image)
-        for box, corners in frame:
-            fill = tuple(int(255 * c) for c in box.color_srgb)
-            draw.polygon(to_px(_convex_hull(corners)), fill=fill, outline=INK)
-        draw.text((8, 4), f"t = {i * frame_stride * env_dt:5.2f} s", fill=INK, font=font)
-        images.append(image.convert("P", palette=Image.Palette.ADAPTIVE, colors=32))
+        for box, corners in self.geometry.outlines(transforms):
+            points = [((x - self.low[0]) * self.scale, height - (z - self.low[1]) * self.scale)
+                      for x, z in _convex_hull(corners)]
+            draw.polygon(points, fill=tuple(int(255 * c) for c in box.color_srgb), outline=INK)
+        if caption:
+            draw.text((8, 4), caption, fill=INK, font=self.font)
+        return image
+
+
+def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, frame_stride: int = 2) -> Path:
+    """``frames`` (T, bodies, 7) drawn by ``view`` as an animated GIF, every ``frame_stride``-th env step."""
+    images = [view.image(transforms, f"t = {i * frame_stride * env_dt:5.2f} s").convert(
+        "P", palette=Image.Palette.ADAPTIVE, colors=32) for i, transforms in enumerate(frames[::frame_stride])]
     duration_ms = max(20, int(round(1000 * env_dt * frame_stride)))
 
     def save(tmp):
         images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0)
 
     return atomic_write(path, save)
+
+
+class EnvFrames(Sequence):
+    """``frames[i]``: env ``i`` of a ``CartpoleEnv`` now, as an (H, W, 3) uint8 array, drawn when asked (a vector
+    env's ``render()`` returns this sequence: rendering one env costs one picture, not ``num_envs``). The framing is
+    fixed at construction from env 0: the rail across, the pole's reach up and down."""
+
+    def __init__(self, env: CartpoleEnv, width_px: int = 640):
+        self.env = env
+        self._geometries: dict[tuple[int, int], Geometry] = {}
+        first = self._geometry(0)
+        self.view = SideView.around(first, [first.body_transforms(env.scene.state_0)], width_px, reach=True)
+
+    def _geometry(self, index: int) -> Geometry:
+        shard = next(s for s in self.env.shards if s.start <= index < s.stop)
+        key = (shard.index, index - shard.start)
+        if key not in self._geometries:
+            self._geometries[key] = Geometry(shard.scene.model, world=index - shard.start)
+        return self._geometries[key]
+
+    def __len__(self) -> int:
+        return self.env.num_envs
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"env {index} of {len(self)}")
+        index %= len(self)
+        shard = next(s for s in self.env.shards if s.start <= index < s.stop)
+        transforms = self._geometry(index).body_transforms(shard.scene.state_0)
+        return np.asarray(self.view.image(transforms))

@@ -1,34 +1,58 @@
-"""Recording env 0 of a rollout: a GIF side view and a time-sampled USD stage (Newton's ``ViewerUSD``).
+"""Recording env 0 of a rollout: a GIF side view, an MP4 of the same pictures, and a time-sampled USD stage (Newton's
+``ViewerUSD``).
 
-    recorder = Recorder(env.scene, env.env_dt, out_dir / "cartpole.gif", out_dir / "cartpole.usda")
+    recorder = Recorder(env.scene, env.env_dt, out_dir)
     rollout(env, policy, steps, on_step=recorder)
-    recorder.close()                      # writes both files; usdview out_dir/cartpole.usda plays the stage
+    recorder.close()            # cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda (usdview plays it)
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
 import numpy as np
 from newton.viewer import ViewerUSD
 
+from ..rl.runs import atomic_write
 from ..scene import Scene
-from .frames import Geometry, write_gif
+from .frames import Geometry, SideView, write_gif
+
+VIDEO_EXTRA = "pip install 'cartpole_warp[video]'"
+
+
+def video_available() -> bool:
+    """Whether MP4s can be written: imageio with its ffmpeg wheel (the video extra, which also brings moviepy for
+    gymnasium's RecordVideo) is installed."""
+    return importlib.util.find_spec("imageio") is not None and importlib.util.find_spec("imageio_ffmpeg") is not None
+
+
+def write_mp4(path: Path, images: list[np.ndarray], fps: float) -> Path:
+    """``images`` (H, W, 3) uint8 as an H.264 MP4 at ``fps``, every image one frame (imageio + ffmpeg; moviepy, which
+    RecordVideo uses, drops the last frame for some counts and rates)."""
+    import imageio.v2 as imageio
+
+    def write(tmp):
+        with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", macro_block_size=2) as video:
+            for image in images:
+                video.append_data(image)
+
+    return atomic_write(path, write)
 
 
 class Recorder:
-    """Called once per env step (``recorder(step)``), it records the bodies of env 0 of ``scene``."""
+    """Called once per env step (``recorder(step)``), it records the bodies of env 0 of ``scene``.
+    ``video_length``: env steps in the MP4 (None: all)."""
 
-    def __init__(self, scene: Scene, env_dt: float, gif_path: Path, usd_path: Path):
-        self.scene, self.env_dt = scene, env_dt
-        self.gif_path, self.usd_path = Path(gif_path), Path(usd_path)
+    def __init__(self, scene: Scene, env_dt: float, out_dir: Path, video_length: int | None = None):
+        self.scene, self.env_dt, self.out_dir, self.video_length = scene, env_dt, Path(out_dir), video_length
         self.geometry = Geometry(scene.model)
         self.frames: list[np.ndarray] = []
         self.fps = max(1, round(1.0 / env_dt))
         """Time codes per second of the USD stage: one time code per env step."""
-        self.usd_path.parent.mkdir(parents=True, exist_ok=True)
-        self._usd_tmp = self.usd_path.with_name(f".{self.usd_path.name}.tmp.usda")
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self._usd_tmp = self.out_dir / ".cartpole.usda.tmp.usda"
         self.usd = ViewerUSD(str(self._usd_tmp), fps=self.fps, num_frames=None)
         self.usd.set_model(scene.model)
         self.usd.set_visible_worlds([0])
@@ -40,9 +64,15 @@ class Recorder:
         self.usd.log_state(state)
         self.usd.end_frame()
 
-    def close(self) -> tuple[Path, Path]:
-        """Write the GIF and the USD stage; return their paths."""
+    def close(self) -> list[Path]:
+        """Write the GIF, the MP4 (when the video extra is installed) and the USD stage; return their paths."""
         self.usd.close()
-        os.replace(self._usd_tmp, self.usd_path)
-        write_gif(self.gif_path, self.geometry, np.stack(self.frames), self.env_dt)
-        return self.gif_path, self.usd_path
+        usd = self.out_dir / "cartpole.usda"
+        os.replace(self._usd_tmp, usd)
+        view = SideView.around(self.geometry, self.frames, width_px=800)
+        written = [write_gif(self.out_dir / "cartpole.gif", view, np.stack(self.frames), self.env_dt)]
+        if video_available():
+            shown = self.frames[:self.video_length] if self.video_length else self.frames
+            images = [np.asarray(view.image(t, f"t = {i * self.env_dt:5.2f} s")) for i, t in enumerate(shown)]
+            written.append(write_mp4(self.out_dir / "cartpole.mp4", images, 1.0 / self.env_dt))
+        return [*written, usd]

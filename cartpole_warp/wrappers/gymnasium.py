@@ -45,6 +45,22 @@ def actions_tensor(actions, num_envs: int, device: str) -> torch.Tensor:
     return torch.from_numpy(array.reshape(num_envs, 1)).to(device)
 
 
+def env_frames(core: CartpoleEnv, render_mode: str | None):
+    """The frames behind ``render()`` for ``render_mode`` ('rgb_array' or None: nothing is drawn)."""
+    if render_mode is None:
+        return None
+    if render_mode != "rgb_array":
+        raise ValueError(f"render_mode {render_mode!r} is not supported; use 'rgb_array' (or None)")
+    from ..viz.frames import EnvFrames
+
+    return EnvFrames(core)
+
+
+def render_metadata(core: CartpoleEnv) -> dict:
+    """``render_modes`` and ``render_fps`` (one frame per env step) for an env's metadata."""
+    return {"render_modes": ["rgb_array"], "render_fps": round(1.0 / core.env_dt)}
+
+
 def register_envs() -> None:
     """Register ``ENV_IDS`` with gymnasium (idempotent); ``import cartpole_warp`` calls it."""
     for env_id, preset in ENV_IDS.items():
@@ -70,13 +86,14 @@ class CartpoleGymEnv(gym.Env):
     ``reset(seed=...)``; default the preset's) and ``make_env``'s nested overrides, e.g. ``task={...}``.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"]}
 
     def __init__(self, preset: str = "tutorial", device: str = "cpu", seed: int | None = None,
                  render_mode: str | None = None, **sim_task_overrides):
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not supported; this env does not render")
         self.core: CartpoleEnv = make_env(num_envs=1, device=device, seed=seed, preset=preset, **sim_task_overrides)
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, **render_metadata(self.core)}
+        self._frames = env_frames(self.core, render_mode)
         self.observation_space = observation_space()
         self.action_space = action_space()
         self._episode_ended = False
@@ -104,6 +121,10 @@ class CartpoleGymEnv(gym.Env):
             }
         return obs[0].cpu().numpy(), float(reward[0]), terminated, truncated, step_info
 
+    def render(self):
+        """With ``render_mode="rgb_array"``: the cartpole now, (H, W, 3) uint8, side-on (play.py's pictures)."""
+        return self._frames[0] if self._frames is not None else None
+
     def close(self):
         self.core.close()
 
@@ -121,14 +142,15 @@ class CartpoleVectorEnv(VectorEnv):
     Arguments as for ``CartpoleGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to 'default'.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
 
     def __init__(self, num_envs: int | None = None, preset: str = "default", device: str = "cpu",
                  seed: int | None = None, render_mode: str | None = None, **sim_task_overrides):
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not supported; this env does not render")
         self.core: CartpoleEnv = make_env(num_envs=num_envs, device=device, seed=seed, preset=preset,
                                           **sim_task_overrides)
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, **render_metadata(self.core)}
+        self._frames = env_frames(self.core, render_mode)
         self.num_envs = self.core.num_envs
         self.single_observation_space = observation_space()
         self.single_action_space = action_space()
@@ -154,6 +176,12 @@ class CartpoleVectorEnv(VectorEnv):
             infos = {"final_obs": info["final_obs"].cpu().numpy(), "_final_obs": done,
                      "final_info": final_info, "_final_info": done}
         return obs.cpu().numpy(), reward.cpu().numpy(), terminated, truncated, infos
+
+    def render(self):
+        """With ``render_mode="rgb_array"``: a sequence of ``num_envs`` frames (H, W, 3) uint8 that draws env ``i``
+        only when ``frames[i]`` is read, so ``RecordVideo(envs, ..., record_first_only=True)`` costs one picture a
+        step (without it, RecordVideo reads and tiles all envs: keep num_envs small then)."""
+        return self._frames
 
     def close_extras(self, **kwargs):
         self.core.close()

@@ -19,7 +19,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from ..env import CartpoleEnv
-from .gymnasium import action_space, actions_tensor, observation_space
+from .gymnasium import action_space, actions_tensor, env_frames, observation_space, render_metadata
 
 
 class CartpoleSb3VecEnv(VecEnv):
@@ -34,10 +34,12 @@ class CartpoleSb3VecEnv(VecEnv):
     and report its value for each requested index. ``episode_count`` counts the episodes ended so far.
     """
 
-    def __init__(self, env: CartpoleEnv):
+    def __init__(self, env: CartpoleEnv, render_mode: str | None = None):
         self.env = env
-        self.render_mode = None
+        self.render_mode = render_mode
         super().__init__(env.num_envs, observation_space(), action_space())
+        self.metadata = {**self.metadata, **render_metadata(env)}
+        self._frames = env_frames(env, render_mode)
         self.episode_count = 0
         self._start_time = time.time()
         self._actions = None
@@ -73,6 +75,19 @@ class CartpoleSb3VecEnv(VecEnv):
                     "episode": {"r": float(returns[i]), "l": int(lengths[i]), "t": elapsed},
                 }
         return obs.cpu().numpy(), reward.cpu().numpy(), dones, infos
+
+    def get_images(self):
+        """``num_envs`` frames (H, W, 3) uint8, env ``i`` drawn when read (needs render_mode='rgb_array')."""
+        if self._frames is None:
+            raise ValueError("get_images() needs CartpoleSb3VecEnv(env, render_mode='rgb_array')")
+        return self._frames
+
+    def render(self, mode: str | None = None):
+        """With render_mode 'rgb_array': the first env now, (H, W, 3) uint8 (what VecVideoRecorder records);
+        ``get_images()`` draws any env."""
+        if self._frames is None or mode not in (None, "rgb_array"):
+            return super().render(mode)
+        return self._frames[0]
 
     def close(self) -> None:
         self._actions = None
