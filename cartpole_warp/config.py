@@ -60,8 +60,12 @@ class SimConfig:
     """SolverFeatherstone recomputes the joint-space mass matrix every this many physics steps; must divide
     decimation (the captured step replays the choice). 2 with decimation 2 = once per env step, ~25% faster."""
     stage_path: str | None = None
-    """USD stage holding the cartpole articulation (joints 'cartJoint' and 'poleJoint'); None: the cartpole stage
-    shipped with the package (usd/cartpole.usda)."""
+    """USD stage holding the cartpole articulation (metres, kilograms; any up axis and prim names); None: the cartpole
+    stage shipped with the package (usd/cartpole.usda)."""
+    cart_joint: str = "cartJoint"
+    """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
+    pole_joint: str = "poleJoint"
+    """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
     capture: Capture = "auto"
     """Graph capture of the env step: 'auto' (CUDA, and CPU where measured faster: always), 'on' or 'off'."""
     cpu_threads: int = 0

@@ -1,8 +1,8 @@
 """USD stage -> Newton model replicated ``num_envs`` times -> solver.
 
 Build order (as in Newton's examples): ModelBuilder -> add_usd -> replicate -> finalize -> solver ->
-state_0 / state_1 / control. The cart and pole DOFs are found by joint name; everything physical
-(masses, lengths, limits, gravity) comes from the stage.
+state_0 / state_1 / control. The cart and pole DOFs are found by joint name (``sim.cart_joint``,
+``sim.pole_joint``); everything physical (masses, lengths, inertias, limits, gravity) comes from the stage.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from .runtime import init_warp
 
 CART_JOINT = "cartJoint"
 POLE_JOINT = "poleJoint"
+"""The tutorial's joint names (``sim.cart_joint`` / ``sim.pole_joint`` name another stage's)."""
 SHARDABLE_SOLVERS = ("featherstone",)
 """Solvers whose CPU scenes can step in parallel threads; mujoco-warp's tile kernels share one CPU arena, so
 concurrent replays of MuJoCo scenes abort."""
@@ -53,26 +54,62 @@ class Scene:
             self.state_0, self.state_1 = self.state_1, self.state_0
 
 
-def load_cartpole(stage_path: Path) -> tuple[newton.ModelBuilder, int, int]:
-    """One cartpole from the stage: (builder, cart_dof, pole_dof)."""
+def check_units(path: Path):
+    """StageError unless the stage is authored in metres and kilograms (Newton's importer assumes both and only
+    warns otherwise; the task's limits are in metres and radians)."""
+    from pxr import Usd, UsdGeom, UsdPhysics
+
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Exception as err:  # usd-core raises Tf.ErrorException for unreadable files
+        raise StageError(f"cannot load USD stage {path}: {' '.join(str(err).split())}") from None
+    meters, kilograms = UsdGeom.GetStageMetersPerUnit(stage), UsdPhysics.GetStageKilogramsPerUnit(stage)
+    if abs(meters - 1.0) > 1e-9 or abs(kilograms - 1.0) > 1e-9:
+        raise StageError(f"stage {path} is authored in metersPerUnit={meters:g}, kilogramsPerUnit={kilograms:g}; "
+                         "cartpole_warp simulates stages in metres and kilograms (both 1): rescale the stage")
+
+
+def pick_joint(labels: list[str], name: str, role: str) -> int:
+    """Index of the joint whose prim path is ``name`` or ends in ``/name``; StageError naming the candidates when
+    none or several match."""
+    found = [i for i, label in enumerate(labels) if label == name or label.endswith("/" + name)]
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        raise StageError(f"no joint named {name!r} for the {role} (set sim.{role.replace(' ', '_')}); "
+                         f"the stage's movable joints: {', '.join(labels) or 'none'}")
+    raise StageError(f"{len(found)} joints match {name!r} for the {role}: {', '.join(labels[i] for i in found)}; "
+                     f"give sim.{role.replace(' ', '_')} the full prim path")
+
+
+def load_cartpole(stage_path: Path, cart_joint: str = CART_JOINT, pole_joint: str = POLE_JOINT
+                  ) -> tuple[newton.ModelBuilder, int, int]:
+    """One cartpole from the stage: (builder, cart_dof, pole_dof). The cart joint must be prismatic, the pole joint
+    revolute, every other joint fixed."""
     path = Path(stage_path)
     if not path.is_file():
         raise StageError(f"USD stage not found: {path}")
+    check_units(path)
     builder = newton.ModelBuilder()
     newton.solvers.SolverMuJoCo.register_custom_attributes(builder)
     try:
         builder.add_usd(str(path), enable_self_collisions=False, collapse_fixed_joints=True)
     except Exception as err:  # usd-core and the importer raise many types; name the file once
         raise StageError(f"cannot load USD stage {path}: {type(err).__name__}: {err}") from err
-    names = [label.rsplit("/", 1)[-1] for label in builder.joint_label]
-    missing = [name for name in (CART_JOINT, POLE_JOINT) if name not in names]
-    if missing:
-        raise StageError(f"stage {path} has no joint named {' or '.join(missing)}; its joints: {names or 'none'}")
-    if builder.joint_dof_count != len(names) or builder.joint_coord_count != len(names):
-        raise StageError(f"stage {path}: every joint must have one DOF (prismatic or revolute); joints: {names}")
-    cart_dof = builder.joint_qd_start[names.index(CART_JOINT)]
-    pole_dof = builder.joint_qd_start[names.index(POLE_JOINT)]
-    return builder, cart_dof, pole_dof
+    labels = list(builder.joint_label)
+    kinds = [newton.JointType(kind) for kind in builder.joint_type]
+    cart = pick_joint(labels, cart_joint, "cart joint")
+    pole = pick_joint(labels, pole_joint, "pole joint")
+    for index, role, wanted in ((cart, "cart joint", newton.JointType.PRISMATIC),
+                                (pole, "pole joint", newton.JointType.REVOLUTE)):
+        if kinds[index] != wanted:
+            raise StageError(f"the {role} {labels[index]} of {path} is {kinds[index].name.lower()}; it must be "
+                             f"{wanted.name.lower()}")
+    others = [f"{label} ({kind.name.lower()})" for i, (label, kind) in enumerate(zip(labels, kinds, strict=True))
+              if i not in (cart, pole) and kind != newton.JointType.FIXED]
+    if others:
+        raise StageError(f"stage {path}: only the cart and pole joints may move, but it also has {', '.join(others)}")
+    return builder, builder.joint_qd_start[cart], builder.joint_qd_start[pole]
 
 
 def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBase:
@@ -87,7 +124,7 @@ def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBas
 def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
     """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
     init_warp()
-    cartpole, cart_dof, pole_dof = load_cartpole(sim.stage)
+    cartpole, cart_dof, pole_dof = load_cartpole(sim.stage, sim.cart_joint, sim.pole_joint)
     builder = newton.ModelBuilder()
     builder.replicate(cartpole, copy_count=num_envs)
     model = builder.finalize(device=device)

@@ -4,11 +4,12 @@ import math
 
 import pytest
 import torch
-from pxr import Usd, UsdPhysics
+from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
 from cartpole_warp.config import data_path
 from cartpole_warp.runtime import shard_bounds
+from cartpole_warp.scene import pick_joint
 
 SAFE = torch.tensor([0.2, 0.1, 0.05, -0.1])
 
@@ -253,8 +254,64 @@ def test_malformed_stage_and_missing_joint(tmp_path, device):
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(garbage)})
     renamed = tmp_path / "no_pole_joint.usda"
     write_stage_with_renamed_joint(renamed)
-    with pytest.raises(cartpole_warp.StageError, match="no joint named poleJoint"):
+    with pytest.raises(cartpole_warp.StageError, match="no joint named 'poleJoint' for the pole joint"):
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(renamed)})
+
+
+def edited_stage(path, edit):
+    """Our stage, exported to ``path`` and changed by ``edit(stage)``."""
+    stage = Usd.Stage.Open(str(data_path("usd", "cartpole.usda")))
+    stage.GetRootLayer().Export(str(path))
+    stage = Usd.Stage.Open(str(path))
+    edit(stage)
+    stage.GetRootLayer().Save()
+    return str(path)
+
+
+def revolute_cart_joint(stage):
+    stage.RemovePrim("/cartpole/cartJoint")
+    joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/cartJoint")
+    joint.CreateBody0Rel().SetTargets(["/cartpole/rail"])
+    joint.CreateBody1Rel().SetTargets(["/cartpole/cart"])
+    joint.CreateAxisAttr("X")
+
+
+def spherical_pole_joint(stage):
+    stage.RemovePrim("/cartpole/poleJoint")
+    joint = UsdPhysics.SphericalJoint.Define(stage, "/cartpole/poleJoint")
+    joint.CreateBody0Rel().SetTargets(["/cartpole/cart"])
+    joint.CreateBody1Rel().SetTargets(["/cartpole/pole"])
+    joint.CreateLocalPos0Attr((0.12, 0.0, 0.0))
+
+
+def swinging_rail(stage):
+    stage.RemovePrim("/cartpole/railJoint")
+    joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/railJoint")
+    joint.CreateBody1Rel().SetTargets(["/cartpole/rail"])
+    joint.CreateAxisAttr("Z")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda stage: UsdGeom.SetStageMetersPerUnit(stage, 0.01), "metersPerUnit=0.01"),
+    (lambda stage: UsdPhysics.SetStageKilogramsPerUnit(stage, 0.001), "kilogramsPerUnit=0.001"),
+    (revolute_cart_joint, "the cart joint /cartpole/cartJoint of .* is revolute; it must be prismatic"),
+    (spherical_pole_joint, "the pole joint /cartpole/poleJoint of .* is ball; it must be revolute"),
+    (swinging_rail, "only the cart and pole joints may move, but it also has /cartpole/railJoint \\(revolute\\)"),
+])
+def test_stages_the_task_cannot_use_are_named(tmp_path, device, edit, message):
+    stage = edited_stage(tmp_path / "edited.usda", edit)
+    with pytest.raises(cartpole_warp.StageError, match=message):
+        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": stage})
+
+
+def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
+    labels = ["/a/slide", "/b/slide", "/a/hinge"]
+    assert pick_joint(labels, "hinge", "pole joint") == 2
+    assert pick_joint(labels, "/b/slide", "cart joint") == 1
+    with pytest.raises(cartpole_warp.StageError, match="2 joints match 'slide' for the cart joint: /a/slide, /b/slide"):
+        pick_joint(labels, "slide", "cart joint")
+    with pytest.raises(cartpole_warp.StageError, match="no joint named 'wheel' .* sim.pole_joint"):
+        pick_joint(labels, "wheel", "pole joint")
 
 
 def test_close_stops_the_shard_threads(make, device):

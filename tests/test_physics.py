@@ -1,11 +1,13 @@
 """The Newton cartpole from the stage against an independent closed-form cart + pole model."""
 
 import math
+from pathlib import Path
 
+import newton.examples
 import numpy as np
 import pytest
 import torch
-from pxr import Usd, UsdPhysics
+from pxr import Usd, UsdGeom, UsdPhysics
 
 from cartpole_warp.config import data_path
 
@@ -14,24 +16,54 @@ PHYSICS_DT_S = 1.0 / 4000.0
 
 
 STAGE = data_path("usd", "cartpole.usda")
+NEWTON_STAGE = Path(newton.examples.get_asset("cartpole_single_pendulum.usda"))
+"""Newton's copy of Isaac Lab's cartpole: joints slider_to_cart and cart_to_pole, no authored pole inertia."""
+STAGES = {
+    "ours": (STAGE, {}, ("/cartpole/cart", "/cartpole/pole", "/cartpole/poleJoint")),
+    "newton": (NEWTON_STAGE, {"cart_joint": "slider_to_cart", "pole_joint": "cart_to_pole"},
+               ("/cartpole/cart", "/cartpole/pole", "/cartpole/cart/cart_to_pole")),
+}
+"""Stage, the sim settings that name its joints, and its cart body, pole body and pole joint prims."""
 
 
-def stage_parameters(path=STAGE):
-    """Cart mass, pole mass, hinge-to-COM length, pole inertia about its COM (hinge axis), gravity; from the stage."""
+def pole_inertia_about_com(pole: Usd.Prim, mass: float, com: np.ndarray) -> float:
+    """The pole's inertia about the hinge axis (X) through its centre of mass: the authored diagonal inertia, or as
+    UsdPhysics derives it where none is authored, from the collision boxes (uniform density, mass shared by volume)."""
+    authored = UsdPhysics.MassAPI(pole).GetDiagonalInertiaAttr().Get()
+    if authored is not None and any(authored):
+        return float(authored[0])
+    boxes = []
+    for prim in Usd.PrimRange(pole, Usd.TraverseInstanceProxies()):
+        if prim.IsA(UsdGeom.Cube) and prim.HasAPI(UsdPhysics.CollisionAPI):
+            local = UsdGeom.Xformable(prim).GetLocalTransformation()
+            size = prim.GetAttribute("size").Get() * np.array(prim.GetAttribute("xformOp:scale").Get())
+            boxes.append((size, np.array(local.ExtractTranslation())))
+    volumes = np.array([np.prod(size) for size, _ in boxes])
+    inertia = 0.0
+    for (size, center), share in zip(boxes, volumes / volumes.sum(), strict=True):
+        m = mass * share
+        inertia += m * (size[1] ** 2 + size[2] ** 2) / 12 + m * ((center[1] - com[1]) ** 2 + (center[2] - com[2]) ** 2)
+    return inertia
+
+
+def stage_parameters(name="ours"):
+    """Cart mass, pole mass, hinge-to-COM length, pole inertia about its COM (hinge axis), gravity; from the stage
+    (gravity: its physics scene, or UsdPhysics' default 9.81 m/s^2 where it has none)."""
+    path, _, (cart_path, pole_path, joint_path) = STAGES[name]
     stage = Usd.Stage.Open(str(path))
-    cart = UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/cart"))
-    pole = UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/pole"))
-    joint = UsdPhysics.RevoluteJoint(stage.GetPrimAtPath("/cartpole/poleJoint"))
-    scene = UsdPhysics.Scene(stage.GetPrimAtPath("/physicsScene"))
+    cart, pole = UsdPhysics.MassAPI(stage.GetPrimAtPath(cart_path)), stage.GetPrimAtPath(pole_path)
+    joint = UsdPhysics.RevoluteJoint(stage.GetPrimAtPath(joint_path))
+    scenes = [UsdPhysics.Scene(prim) for prim in stage.Traverse() if prim.IsA(UsdPhysics.Scene)]
     assert joint.GetAxisAttr().Get() == "X"
     hinge_in_pole = np.array(joint.GetLocalPos1Attr().Get())
-    com = np.array(pole.GetCenterOfMassAttr().Get())
+    com = np.array(UsdPhysics.MassAPI(pole).GetCenterOfMassAttr().Get())
+    pole_mass = UsdPhysics.MassAPI(pole).GetMassAttr().Get()
     return {
         "cart_mass": cart.GetMassAttr().Get(),
-        "pole_mass": pole.GetMassAttr().Get(),
+        "pole_mass": pole_mass,
         "com_length": float(com[2] - hinge_in_pole[2]),
-        "pole_inertia": pole.GetDiagonalInertiaAttr().Get()[0],
-        "gravity": scene.GetGravityMagnitudeAttr().Get(),
+        "pole_inertia": pole_inertia_about_com(pole, pole_mass, com),
+        "gravity": scenes[0].GetGravityMagnitudeAttr().Get() if scenes else 9.81,
     }
 
 
@@ -73,16 +105,25 @@ def test_stage_parameters_are_the_classic_cartpole():
     assert p["pole_inertia"] == pytest.approx(1.0 * (0.06**2 + 1.0**2) / 12, rel=1e-5)
 
 
-@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
-def test_trajectory_matches_closed_form(solver, make):
+def test_newton_stage_parameters_come_from_its_geometry():
+    p = stage_parameters("newton")
+    assert (p["cart_mass"], p["pole_mass"], p["gravity"]) == pytest.approx((1.0, 1.0, 9.81))
+    assert p["com_length"] == pytest.approx(0.47, abs=1e-6)
+    assert p["pole_inertia"] == pytest.approx((0.06**2 + 1.0**2) / 12, rel=1e-5), "derived: no inertia authored"
+
+
+@pytest.mark.parametrize("stage, solver", [("ours", "featherstone"), ("ours", "mujoco"), ("newton", "featherstone")])
+def test_trajectory_matches_closed_form(stage, solver, make):
     """1.2 s under a fixed force sequence (with pulses beyond the action clip) from three starting states.
 
     Both solvers integrate semi-implicitly (first order): at 1/4000 s the error is about 0.5% of each
     quantity's range, and it shrinks in proportion to the step (about 2% at 1/1000 s).
     """
-    p = stage_parameters()
+    p = stage_parameters(stage)
+    path, joints, _ = STAGES[stage]
     steps = round(DURATION_S / PHYSICS_DT_S)
-    env = make(3, sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
+    env = make(3, sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1,
+                       "stage_path": str(path), **joints},
                task={"episode_length_s": None, "reset_dist_m": 100.0, "max_pole_angle_rad": 100.0})
     starts = torch.tensor([[0.0, 0.0, 0.1, 0.0], [0.5, -0.3, -0.2, 0.5], [-1.0, 0.4, 0.05, -0.8]])
     env.set_state(starts.to(env.device))

@@ -234,3 +234,18 @@ def test_small_configuration_trains_to_solved_and_plays_well(tmp_path):
     result = run_script("play.py", "--headless", "--run", run, "--num-envs", "64")
     assert result.returncode == 0, result.stderr
     assert json.loads((run / "play" / "result.json").read_text())["time_limit_fraction"] >= 0.9
+
+
+@pytest.mark.slow
+def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
+    import newton.examples
+
+    stage = newton.examples.get_asset("cartpole_single_pendulum.usda")
+    result = run_script("train.py", "--num-envs", "512", "--env.task.episode-length-s", "5", "--max-iterations", "200",
+                        "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path,
+                        "--env.sim.stage-path", stage, "--env.sim.cart-joint", "slider_to_cart",
+                        "--env.sim.pole-joint", "cart_to_pole", timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = only_run(tmp_path)
+    assert json.loads((run / "summary.json").read_text())["solved"]
+    assert yaml.safe_load((run / "config.yaml").read_text())["env"]["sim"]["cart_joint"] == "slider_to_cart"
