@@ -27,6 +27,26 @@ Capture = Literal["auto", "on", "off"]
 """Graph capture of the env step."""
 NO_TIME_LIMIT = 2**31 - 1
 """``max_episode_length`` of an env without a time limit (the largest int32 step counter)."""
+MAX_EPISODE_LENGTH = NO_TIME_LIMIT - 1
+"""The longest finite time limit in env steps that the kernels' int32 step counters hold."""
+MAX_NUM_ENVS = 2**24
+"""The most envs one process builds."""
+BYTES_PER_ENV = 7_000
+"""Peak memory per env while building the scene (measured on the CPU with 262,144 envs: ~6.9 kB)."""
+
+Count = Annotated[int, pydantic.Strict(), pydantic.Field(ge=1)]
+"""An integer >= 1 (not a bool, not a float)."""
+NonNegativeInt = Annotated[int, pydantic.Strict(), pydantic.Field(ge=0)]
+Positive = Annotated[float, pydantic.Field(gt=0, allow_inf_nan=False)]
+"""A finite number > 0."""
+NonNegative = Annotated[float, pydantic.Field(ge=0, allow_inf_nan=False)]
+"""A finite number >= 0."""
+Finite = Annotated[float, pydantic.Field(allow_inf_nan=False)]
+Flag = Annotated[bool, pydantic.Strict()]
+"""True or False (not 1, 0 or 'yes')."""
+Name = Annotated[str, pydantic.Field(min_length=1)]
+Seed = Annotated[int, pydantic.Strict(), pydantic.Field(ge=0, le=2**31 - 1 - 4096)]
+"""A non-negative int32 (the kernels take it as one; torchrun adds the rank)."""
 
 NO_UNKNOWN_KEYS = pydantic.ConfigDict(extra="forbid")
 """pydantic setting of every config dataclass: a dict (preset, saved config) with an unknown key is an error."""
@@ -50,25 +70,25 @@ class SimConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    physics_dt: float = 1.0 / 120.0
+    physics_dt: Positive = 1.0 / 120.0
     """Physics step (s)."""
-    decimation: int = 2
+    decimation: Count = 2
     """Physics steps per env step; the env step is physics_dt * decimation seconds."""
     solver: Solver = "featherstone"
     """Newton solver: 'featherstone' (SolverFeatherstone) or 'mujoco' (SolverMuJoCo on mujoco-warp)."""
-    mass_matrix_interval: int = 2
+    mass_matrix_interval: Count = 2
     """SolverFeatherstone recomputes the joint-space mass matrix every this many physics steps; must divide
     decimation (the captured step replays the choice). 2 with decimation 2 = once per env step, ~25% faster."""
     stage_path: str | None = None
     """USD stage holding the cartpole articulation (metres, kilograms; any up axis and prim names); None: the cartpole
     stage shipped with the package (usd/cartpole.usda)."""
-    cart_joint: str = "cartJoint"
+    cart_joint: Name = "cartJoint"
     """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
-    pole_joint: str = "poleJoint"
+    pole_joint: Name = "poleJoint"
     """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
     capture: Capture = "auto"
     """Graph capture of the env step: 'auto' (CUDA, and CPU where measured faster: always), 'on' or 'off'."""
-    cpu_threads: int = 0
+    cpu_threads: NonNegativeInt = 0
     """On the CPU with featherstone, step this many shards of the envs in parallel threads (Warp runs each CPU
     kernel launch on one thread); 0: one per available core. Shards hold at least 512 envs; ignored on CUDA."""
 
@@ -91,31 +111,31 @@ class TaskConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    max_push_effort_n: float = 400.0
+    max_push_effort_n: NonNegative = 400.0
     """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
-    reset_dist_m: float = 3.0
+    reset_dist_m: Positive = 3.0
     """Terminate when |cart_pos| exceeds this (m)."""
-    max_pole_angle_rad: float = math.pi / 2
+    max_pole_angle_rad: Positive = math.pi / 2
     """Terminate when |pole_angle| exceeds this (rad)."""
-    failure_reward: float = -2.0
+    failure_reward: Finite = -2.0
     """Reward that replaces the shaped reward on the step that terminates."""
-    alive_reward: float = 1.0
+    alive_reward: Finite = 1.0
     """Constant term of the shaped reward."""
-    pole_angle_weight: float = 1.0
+    pole_angle_weight: NonNegative = 1.0
     """Weight of pole_angle^2 (per rad^2) subtracted from the reward."""
-    cart_vel_weight: float = 0.01
+    cart_vel_weight: NonNegative = 0.01
     """Weight of |cart_vel| (per m/s) subtracted from the reward."""
-    pole_vel_weight: float = 0.005
+    pole_vel_weight: NonNegative = 0.005
     """Weight of |pole_vel| (per rad/s) subtracted from the reward."""
-    reset_cart_pos_m: float = 1.0
+    reset_cart_pos_m: NonNegative = 1.0
     """Reset samples cart_pos ~ U(-this, this) (m)."""
-    reset_cart_vel_m_s: float = 0.5
+    reset_cart_vel_m_s: NonNegative = 0.5
     """Reset samples cart_vel ~ U(-this, this) (m/s)."""
-    reset_pole_angle_rad: float = 0.125 * math.pi
+    reset_pole_angle_rad: NonNegative = 0.125 * math.pi
     """Reset samples pole_angle ~ U(-this, this) (rad)."""
-    reset_pole_vel_rad_s: float = 0.25 * math.pi
+    reset_pole_vel_rad_s: NonNegative = 0.25 * math.pi
     """Reset samples pole_vel ~ U(-this, this) (rad/s)."""
-    episode_length_s: float | None = 10.0
+    episode_length_s: Positive | None = 10.0
     """Time limit (s) after which an episode is truncated; None for none (the tutorial has none)."""
 
 
@@ -125,11 +145,11 @@ class EnvConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    num_envs: Annotated[int, tyro.conf.arg(aliases=("--num-envs",))] = 4096
+    num_envs: Annotated[Count, tyro.conf.arg(aliases=("--num-envs",))] = 4096
     """Number of cartpoles simulated in parallel (per GPU when torchrun starts several processes)."""
     device: Annotated[str, tyro.conf.arg(aliases=("--device",))] = "cpu"
     """Warp / torch device: 'cpu', 'cuda' or 'cuda:N' (under torchrun each process takes cuda:$LOCAL_RANK)."""
-    seed: Annotated[int, tyro.conf.arg(aliases=("--seed",))] = 0
+    seed: Annotated[Seed, tyro.conf.arg(aliases=("--seed",))] = 0
     """Seed of the per-env reset RNG (and of torch in train.py; seed + rank under torchrun); the same seed gives the
     same trajectory."""
     sim: SimConfig = field(default_factory=SimConfig)
@@ -143,19 +163,28 @@ class EnvConfig:
         return max(1, math.ceil(self.task.episode_length_s / self.sim.env_dt - 1e-9))
 
     def validate(self) -> EnvConfig:
-        """Raise ConfigError naming the first invalid value; return self."""
+        """Raise ConfigError naming the first invalid value and what is allowed; return self. Each field's type and
+        range are written where it is defined; the checks here relate fields."""
+        if isinstance(self.num_envs, int) and self.num_envs > MAX_NUM_ENVS:
+            need_gb = self.num_envs * BYTES_PER_ENV / 1e9
+            raise ConfigError(f"num_envs={self.num_envs:,} would need about {need_gb:,.0f} GB "
+                              f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
+        checked(self)
         sim, task = self.sim, self.task
-        require(self.num_envs >= 1, f"num_envs must be >= 1, got {self.num_envs!r}")
-        require(sim.physics_dt > 0 and math.isfinite(sim.physics_dt),
-                f"sim.physics_dt must be > 0 s, got {sim.physics_dt!r}")
-        require(sim.decimation >= 1, f"sim.decimation must be >= 1, got {sim.decimation!r}")
-        require(sim.mass_matrix_interval >= 1 and sim.decimation % sim.mass_matrix_interval == 0,
-                f"sim.mass_matrix_interval must be >= 1 and divide sim.decimation ({sim.decimation}), "
-                f"got {sim.mass_matrix_interval!r}")
-        require(sim.cpu_threads >= 0, f"sim.cpu_threads must be >= 0, got {sim.cpu_threads!r}")
-        require(task.episode_length_s is None or task.episode_length_s > 0,
-                f"task.episode_length_s must be > 0 or None, got {task.episode_length_s!r}")
-        require(task.max_push_effort_n >= 0, f"task.max_push_effort_n must be >= 0, got {task.max_push_effort_n!r}")
+        require(sim.decimation % sim.mass_matrix_interval == 0,
+                f"sim.mass_matrix_interval={sim.mass_matrix_interval} must divide sim.decimation={sim.decimation}")
+        require(task.reset_cart_pos_m < task.reset_dist_m,
+                f"task.reset_cart_pos_m={task.reset_cart_pos_m:g} must be below "
+                f"task.reset_dist_m={task.reset_dist_m:g} (else episodes end as they start)")
+        require(task.reset_pole_angle_rad < task.max_pole_angle_rad,
+                f"task.reset_pole_angle_rad={task.reset_pole_angle_rad:g} must be below task.max_pole_angle_rad="
+                f"{task.max_pole_angle_rad:g} (else episodes end as they start)")
+        if task.episode_length_s is not None:
+            steps = task.episode_length_s / sim.env_dt
+            require(steps <= MAX_EPISODE_LENGTH,
+                    f"task.episode_length_s={task.episode_length_s:g} is {steps:,.0f} env steps; the step counters "
+                    f"hold at most {MAX_EPISODE_LENGTH:,} ({MAX_EPISODE_LENGTH * sim.env_dt:,.0f} s): use None for "
+                    "no limit")
         return self
 
 
@@ -166,6 +195,12 @@ def require(ok: bool, message: str):
 
 
 Config = TypeVar("Config")
+
+
+def checked(cfg: Config) -> Config:
+    """``cfg`` checked against its field types and ranges (ConfigError naming the first bad field); returns it."""
+    from_dict(type(cfg), dataclasses.asdict(cfg), "invalid config")
+    return cfg
 
 
 def from_dict(cls: type[Config], data: Any, where: str = "config") -> Config:

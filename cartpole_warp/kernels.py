@@ -182,7 +182,8 @@ def finish_step(
     """After the physics: observe, reward, terminate/truncate, keep the terminal obs, reset ended envs.
 
     ``obs`` holds the previous observation on entry and the next one on exit. A non-finite physics state
-    ends the episode as a failure, reports the last finite observation and is counted.
+    ends the episode as a failure, reports the last finite observation and is counted; its end reason is that
+    observation's (cart out of range, pole fell) when it was already beyond the limits, else "non-finite state".
     """
     env = wp.tid()
     o = read_obs(joint_q, joint_qd, env, layout)
@@ -194,7 +195,9 @@ def finish_step(
         r = shaped_reward(o, p)
     else:
         o = obs[env]
-        reason = END_NONFINITE
+        reason = failure_reason(o, p)  # a finite state already beyond the limits says so, not "non-finite"
+        if reason == END_NONE:
+            reason = END_NONFINITE
         wp.atomic_add(nonfinite_state_count, 0, 1)
     if reason != END_NONE:
         r = p.failure_reward

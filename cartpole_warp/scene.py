@@ -12,7 +12,7 @@ from pathlib import Path
 
 import newton
 
-from .config import ConfigError, SimConfig
+from .config import BYTES_PER_ENV, ConfigError, SimConfig
 from .runtime import init_warp
 
 CART_JOINT = "cartJoint"
@@ -126,8 +126,12 @@ def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
     init_warp()
     cartpole, cart_dof, pole_dof = load_cartpole(sim.stage, sim.cart_joint, sim.pole_joint)
     builder = newton.ModelBuilder()
-    builder.replicate(cartpole, copy_count=num_envs)
-    model = builder.finalize(device=device)
+    try:
+        builder.replicate(cartpole, copy_count=num_envs)
+        model = builder.finalize(device=device)
+    except MemoryError:
+        raise ConfigError(f"not enough memory for {num_envs:,} envs (about {num_envs * BYTES_PER_ENV / 1e9:,.1f} GB "
+                          "while building them): use fewer") from None
     return Scene(
         model=model,
         solver=make_solver(model, sim),

@@ -7,7 +7,7 @@ import torch
 from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
-from cartpole_warp.config import data_path
+from cartpole_warp.config import MAX_EPISODE_LENGTH, data_path
 from cartpole_warp.runtime import shard_bounds
 from cartpole_warp.scene import pick_joint
 
@@ -239,6 +239,18 @@ def write_stage_with_renamed_joint(path):
         ({"sim": {"no_such_field": 1}}, "unknown config key 'sim.no_such_field'"),
         ({"sim": {"stage_path": "/nonexistent/cartpole.usda"}}, "USD stage not found"),
         ({"device": "tpu"}, "unknown device"),
+        ({"num_envs": True}, "num_envs: Input should be a valid integer"),
+        ({"num_envs": 2**31}, "would need about 15,032 GB"),
+        ({"task": {"reset_dist_m": -1.0}}, "task.reset_dist_m: Input should be greater than 0"),
+        ({"task": {"max_pole_angle_rad": 0.0}}, "task.max_pole_angle_rad: Input should be greater than 0"),
+        ({"task": {"max_push_effort_n": math.inf}}, "task.max_push_effort_n: Input should be a finite number"),
+        ({"task": {"cart_vel_weight": -0.01}}, "task.cart_vel_weight: Input should be greater than or equal to 0"),
+        ({"task": {"reset_pole_vel_rad_s": math.nan}}, "task.reset_pole_vel_rad_s: Input should be a finite number"),
+        ({"task": {"reset_cart_pos_m": 3.5}}, "must be below task.reset_dist_m"),
+        ({"task": {"episode_length_s": math.inf}}, "task.episode_length_s: Input should be a finite number"),
+        ({"task": {"episode_length_s": 3.6e7}}, "2,160,000,000 env steps; the step counters hold at most"),
+        ({"seed": -1}, "seed: Input should be greater than or equal to 0"),
+        ({"sim": {"cart_joint": ""}}, "sim.cart_joint: String should have at least 1 character"),
     ],
 )
 def test_invalid_config_names_the_problem(kwargs, message, device):
@@ -312,6 +324,25 @@ def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
         pick_joint(labels, "slide", "cart joint")
     with pytest.raises(cartpole_warp.StageError, match="no joint named 'wheel' .* sim.pole_joint"):
         pick_joint(labels, "wheel", "pole joint")
+
+
+def test_the_longest_time_limit_the_counters_hold_still_truncates(make, device):
+    env = make(2, task={"episode_length_s": MAX_EPISODE_LENGTH / 60})
+    assert env.max_episode_length == MAX_EPISODE_LENGTH
+    env.set_state(torch.zeros(2, 4, device=device))
+    _, _, _, truncated, _ = env.step(torch.zeros(2, 1, device=device))
+    assert not truncated.any()
+    env.episode_length_buf = torch.full((2,), MAX_EPISODE_LENGTH - 1, dtype=torch.int32, device=device)
+    _, _, terminated, truncated, info = env.step(torch.zeros(2, 1, device=device))
+    assert truncated.all() and not terminated.any() and (info["episode_length"] == MAX_EPISODE_LENGTH).all()
+
+
+def test_a_finite_state_beyond_the_limits_ends_for_that_reason(make, device):
+    env = make(3)
+    env.set_state(torch.tensor([[1e6, 0.0, 0.0, 0.0], [-1e6, 0.0, 0.3, 0.0], [0.0, 0.0, 3.0, 0.0]], device=device))
+    _, reward, terminated, _, info = env.step(torch.zeros(3, 1, device=device))
+    assert info["end_reason"].tolist() == [1, 1, 2], "cart out of range, cart out of range, pole fell"
+    assert terminated.all() and (reward == -2.0).all() and torch.isfinite(info["final_obs"]).all()
 
 
 def test_close_stops_the_shard_threads(make, device):

@@ -77,6 +77,29 @@ def test_train_writes_every_artefact(trained):
     assert actions.shape == (2, 1)
 
 
+@pytest.mark.parametrize("batch", [1, 7, 4096])
+def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_checkpoint(trained, batch):
+    import onnxruntime
+
+    from cartpole_warp import make_env
+    from cartpole_warp.rl.runner import CartpoleRunner
+    from cartpole_warp.rl.runs import load_config
+    from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+    _, run, _ = trained
+    obs = np.random.default_rng(batch).normal(size=(batch, 4)).astype(np.float32)
+    (onnx_actions,) = onnxruntime.InferenceSession(str(run / "exported" / "policy.onnx")).run(None, {"obs": obs})
+    scripted = torch.jit.load(str(run / "exported" / "policy.pt"))(torch.from_numpy(obs)).detach().numpy()
+    cfg = load_config(run)
+    runner = CartpoleRunner(RslRlVecEnv(make_env(num_envs=cfg.env.num_envs)), cfg, None)
+    runner.load(str(run / "model_1.pt"), load_cfg={"actor": True})
+    with torch.inference_mode():
+        checkpoint = runner.policy()(torch.from_numpy(obs)).numpy()
+    assert onnx_actions.shape == (batch, 1)
+    np.testing.assert_allclose(onnx_actions, scripted, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(onnx_actions, checkpoint, rtol=1e-5, atol=1e-6)
+
+
 def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     log_dir, run, _ = trained
     result = run_script("play.py", "--headless", "--log-dir", log_dir, "--num-envs", "8", "--steps", "40")
@@ -175,12 +198,19 @@ def test_help_documents_flags_and_config_fields():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--num-envs", "0"], "error: num_envs must be >= 1, got 0"),
+    (["--num-envs", "0"], "error: invalid config: num_envs: Input should be greater than or equal to 1 (got 0)"),
     (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
     (["--config", "nonexistent"], "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),
+    (["--agent.algorithm.learning-rate", "-1"], "error: invalid config: agent.algorithm.learning_rate: Input should be "
+                                                "greater than 0 (got -1.0)"),
+    (["--agent.actor.activation", "foo"], "foo"),
+    (["--num-envs", "2147483648"], "error: num_envs=2,147,483,648 would need about"),
+    (["--env.task.reset-dist-m", "-1"], "error: invalid config: task.reset_dist_m: Input should be greater than 0"),
+    (["--env.task.episode-length-s", "inf"], "task.episode_length_s: Input should be a finite number"),
+    (["--agent.algorithm.gamma", "2"], "agent.algorithm.gamma: Input should be less than or equal to 1"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, args, message):
     result = run_script("train.py", "--log-dir", tmp_path, *args)
@@ -188,6 +218,19 @@ def test_bad_flag_values_are_clear_errors(tmp_path, args, message):
     assert "Traceback" not in result.stderr and not (tmp_path / "rsl_rl").exists()
     if message.startswith("error:"):
         assert result.stderr.strip().count("\n") == 0, "one line"
+
+
+def test_a_failed_resume_changes_nothing_and_a_failed_start_leaves_no_folder(trained, tmp_path):
+    _, run, _ = trained
+    copy = shutil.copytree(run, tmp_path / "run")
+    before = {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()}
+    result = run_script("train.py", "--resume", copy, "--agent.actor.hidden-dims", "64", "64")
+    assert result.returncode == 2 and "does not match the configured networks" in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+    assert {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()} == before
+    assert run_script("play.py", "--headless", "--run", copy, "--num-envs", "2", "--steps", "2").returncode == 0
+    result = run_script("train.py", "--log-dir", tmp_path / "logs", "--env.sim.stage-path", tmp_path / "missing.usda")
+    assert result.returncode == 2 and "USD stage not found" in result.stderr and not (tmp_path / "logs").exists()
 
 
 @pytest.mark.slow

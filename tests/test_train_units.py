@@ -53,6 +53,8 @@ def test_preset_then_flags_override_the_dataclass_defaults(tmp_path):
     ("agent:\n  max_iterations: many\n", "agent.max_iterations: Input should be a valid integer"),
     ("env:\n  sim:\n    solver: bullet\n", "env.sim.solver: Input should be 'featherstone' or 'mujoco'"),
     ("no_such_section: 1\n", "unknown config key 'no_such_section'"),
+    ("env:\n  num_envs: true\n", "env.num_envs: Input should be a valid integer"),
+    ("agent:\n  algorithm:\n    gamma: 2.0\n", "agent.algorithm.gamma: Input should be less than or equal to 1"),
     ("- a list\n", "expected a mapping at the top level"),
 ])
 def test_bad_presets_name_the_key(tmp_path, yaml_text, message):

@@ -11,9 +11,25 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
+import pydantic
 import tyro
 
-from ..config import NO_UNKNOWN_KEYS, ConfigError, EnvConfig, from_dict, load_preset, merge, require
+from ..config import (
+    NO_UNKNOWN_KEYS,
+    ConfigError,
+    Count,
+    EnvConfig,
+    Flag,
+    Name,
+    NonNegative,
+    NonNegativeInt,
+    Positive,
+    checked,
+    from_dict,
+    load_preset,
+    merge,
+    require,
+)
 
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
 """rsl-rl's activation names (``rsl_rl.utils.resolve_nn_activation``)."""
@@ -30,7 +46,7 @@ class DistributionConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    init_std: float = 1.0
+    init_std: Positive = 1.0
     """Initial standard deviation (actions are in units of max_push_effort_n)."""
 
 
@@ -40,11 +56,11 @@ class ModelConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    hidden_dims: list[int] = field(default_factory=lambda: [32, 32])
+    hidden_dims: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [32, 32])
     """Hidden layer widths."""
     activation: Activation = "elu"
     """Activation function of the hidden layers."""
-    obs_normalization: bool = False
+    obs_normalization: Flag = False
     """Normalise observations with running mean/std statistics inside the network."""
 
 
@@ -65,29 +81,29 @@ class PpoConfig:
     class_name: Algorithm = "SyncFreePPO"
     """'PPO' (rsl-rl's) or 'SyncFreePPO' (the same update, no host sync per mini-batch: faster on a GPU)."""
 
-    num_learning_epochs: int = 1
+    num_learning_epochs: Count = 1
     """Passes over each rollout per iteration."""
-    num_mini_batches: int = 6
+    num_mini_batches: Count = 6
     """Mini-batches per epoch."""
-    clip_param: float = 0.2
+    clip_param: Positive = 0.2
     """PPO ratio clip."""
-    gamma: float = 0.99
+    gamma: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.99
     """Discount factor per env step."""
-    lam: float = 0.95
+    lam: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.95
     """GAE lambda."""
-    value_loss_coef: float = 1.0
+    value_loss_coef: NonNegative = 1.0
     """Weight of the value loss."""
-    entropy_coef: float = 0.005
+    entropy_coef: NonNegative = 0.005
     """Weight of the entropy bonus."""
-    learning_rate: float = 1.0e-3
+    learning_rate: Positive = 1.0e-3
     """Initial Adam learning rate (adapted when schedule is 'adaptive')."""
-    max_grad_norm: float = 1.0
+    max_grad_norm: Positive = 1.0
     """Gradient norm clip."""
-    use_clipped_value_loss: bool = True
+    use_clipped_value_loss: Flag = True
     """Clip the value-function update like the policy update."""
     schedule: Schedule = "adaptive"
     """Learning-rate schedule: 'adaptive' (follow desired_kl) or 'fixed'."""
-    desired_kl: float = 0.02
+    desired_kl: Positive = 0.02
     """Target KL divergence per update for the adaptive schedule."""
 
 
@@ -97,21 +113,21 @@ class RunnerConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    num_steps_per_env: int = 12
+    num_steps_per_env: Count = 12
     """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
-    max_iterations: Annotated[int, tyro.conf.arg(aliases=("--max-iterations",))] = 150
+    max_iterations: Annotated[Count, tyro.conf.arg(aliases=("--max-iterations",))] = 150
     """PPO iterations to run (on --resume: iterations to add)."""
-    save_interval: int = 50
+    save_interval: Count = 50
     """Write a checkpoint every this many iterations (and always at the end)."""
-    experiment_name: str = "cartpole"
+    experiment_name: Name = "cartpole"
     """Folder under <log_dir> that groups the runs of one experiment."""
     run_name: Annotated[str, tyro.conf.arg(aliases=("--run-name",))] = ""
     """Suffix of the run folder name (empty: the timestamp alone)."""
     logger: Annotated[MetricsLogger, tyro.conf.arg(aliases=("--logger",))] = "tensorboard"
     """Metrics writer: 'tensorboard', 'wandb' (needs the wandb package) or 'none' (checkpoints and summary only)."""
-    wandb_project: str = "cartpole_warp"
+    wandb_project: Name = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""
-    cuda_graph: bool = True
+    cuda_graph: Flag = True
     """With SyncFreePPO on one GPU: capture one iteration's rollout and its update as CUDA graphs after the first
     iterations and replay them, one launch each instead of thousands. Ignored on the CPU, under torchrun (a 2-GPU run
     with graphs hung at its end), with rsl-rl's PPO (whose sampling and update read the device) and with console
@@ -148,31 +164,26 @@ class TrainConfig:
 
     env: EnvConfig = field(default_factory=EnvConfig)
     agent: RunnerConfig = field(default_factory=RunnerConfig)
-    log_dir: str = "logs"
+    log_dir: Name = "logs"
     """Root folder of all runs; a run lives in <log_dir>/rsl_rl/<agent.experiment_name>/<timestamp>[_<run_name>]."""
     console: Console = "compact"
     """Console output per iteration: 'compact' (one line) or 'rsl_rl' (rsl-rl's block)."""
-    stop_when_solved: bool = False
+    stop_when_solved: Flag = False
     """End training at the first iteration that meets the 'solved' criterion."""
-    torch_threads: int = 1
+    torch_threads: NonNegativeInt = 1
     """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
     networks are tiny, and more threads fight the env and other processes for cores (10x slower when oversubscribed)."""
 
     def validate(self) -> TrainConfig:
-        """Raise ConfigError naming the first invalid value; return self."""
+        """Raise ConfigError naming the first invalid value and what is allowed; return self (each field's type and
+        range are written where it is defined; the checks here relate fields)."""
         self.env.validate()
-        agent, ppo = self.agent, self.agent.algorithm
-        rollout = self.env.num_envs * agent.num_steps_per_env
-        require(agent.max_iterations >= 1, f"agent.max_iterations must be >= 1, got {agent.max_iterations!r}")
-        require(agent.num_steps_per_env >= 1, f"agent.num_steps_per_env must be >= 1, got {agent.num_steps_per_env!r}")
-        require(agent.save_interval >= 1, f"agent.save_interval must be >= 1, got {agent.save_interval!r}")
-        require(self.torch_threads >= 0, f"torch_threads must be >= 0, got {self.torch_threads!r}")
-        require(ppo.num_mini_batches >= 1 and rollout % ppo.num_mini_batches == 0,
-                f"agent.algorithm.num_mini_batches ({ppo.num_mini_batches}) must divide num_envs * "
-                f"agent.num_steps_per_env ({rollout})")
-        for name, model in (("actor", agent.actor), ("critic", agent.critic)):
-            require(all(d >= 1 for d in model.hidden_dims),
-                    f"agent.{name}.hidden_dims must be positive, got {model.hidden_dims!r}")
+        checked(self)
+        rollout = self.env.num_envs * self.agent.num_steps_per_env
+        mini_batches = self.agent.algorithm.num_mini_batches
+        require(rollout % mini_batches == 0,
+                f"agent.algorithm.num_mini_batches ({mini_batches}) must divide num_envs * agent.num_steps_per_env "
+                f"({rollout})")
         return self
 
 

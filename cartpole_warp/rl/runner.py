@@ -228,8 +228,10 @@ class CartpoleRunner(OnPolicyRunner):
 
     def export(self, out_dir: Path) -> list[Path]:
         """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' (N, 4), output
-        'actions' (N, 1)) and TorchScript ``policy.pt`` into ``out_dir``. torch's ONNX exporter reports its progress
-        on stdout and in warnings; that report is shown only if the export fails."""
+        'actions' (N, 1), any batch size N) and TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's
+        ``export_policy_to_onnx`` fixes the batch to 1, so the ONNX export is torch's with a dynamic batch
+        dimension. torch's ONNX exporter reports its progress on stdout and in warnings; that report is shown only
+        if the export fails."""
         out_dir = Path(out_dir)
         report = io.StringIO()
         onnx_logger = logging.getLogger("torch.onnx")
@@ -239,7 +241,11 @@ class CartpoleRunner(OnPolicyRunner):
             with contextlib.redirect_stdout(report), contextlib.redirect_stderr(report), warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 with tempfile.TemporaryDirectory() as scratch:
-                    self.export_policy_to_onnx(scratch, "policy.onnx")
+                    policy = self.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
+                    dummy = torch.zeros(2, policy.input_size)  # batch 2: torch.export specialises a batch of 1
+                    torch.onnx.export(policy, (dummy,), os.path.join(scratch, "policy.onnx"), opset_version=18,
+                                      input_names=policy.input_names, output_names=policy.output_names,
+                                      dynamic_shapes=({0: torch.export.Dim("batch")},), dynamo=True)
                     model = onnx.load(os.path.join(scratch, "policy.onnx"))
                 atomic_write(out_dir / "policy.onnx", lambda tmp: onnx.save_model(model, tmp))
                 atomic_write(out_dir / "policy.pt",
