@@ -154,6 +154,14 @@ class TorchGraph:
         self.graph.replay()
         return self.output
 
+    def release(self):
+        """Free the captured graph (the next call captures it again). A graph holding NCCL collectives must be freed
+        before the process group is destroyed, or destroying it hangs (pytorch/pytorch#115388)."""
+        if self.graph is not None:
+            torch.cuda.synchronize(self.device)
+            self.graph.reset()
+            self.graph = self.output = None
+
     @contextmanager
     def _capture(self, graph: torch.cuda.CUDAGraph) -> Iterator[None]:
         with wp.ScopedStream(wp.stream_from_torch(self.stream)), torch.cuda.graph(graph, stream=self.stream):

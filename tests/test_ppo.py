@@ -11,8 +11,9 @@ from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
-def runner_for(class_name, schedule="adaptive"):
+def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mixed_precision=False):
     cfg = TrainConfig()
+    cfg.agent.torch_compile_mode, cfg.agent.algorithm.use_mixed_precision = torch_compile_mode, use_mixed_precision
     cfg.env.num_envs = 64
     cfg.agent.algorithm.class_name = class_name
     cfg.agent.algorithm.schedule = schedule
@@ -89,3 +90,15 @@ def test_sync_free_ppo_samples_with_the_sync_free_gaussian():
     from cartpole_warp.rl.ppo import SyncFreeGaussian
 
     assert isinstance(runner_for("SyncFreePPO").alg.actor.distribution, SyncFreeGaussian)
+
+
+def test_rsl_rl_compile_and_mixed_precision_options_reach_its_ppo():
+    compiled = runner_for("SyncFreePPO", torch_compile_mode="default")
+    assert isinstance(compiled.alg.actor, torch._dynamo.eval_frame.OptimizedModule)
+    assert isinstance(compiled.alg.critic, torch._dynamo.eval_frame.OptimizedModule)
+    assert not isinstance(runner_for("SyncFreePPO").alg.actor, torch._dynamo.eval_frame.OptimizedModule)
+    mixed = runner_for("SyncFreePPO", use_mixed_precision=True)
+    assert mixed.alg.use_mixed_precision
+    collect(mixed)
+    losses = mixed.alg.update()
+    assert all(torch.isfinite(torch.tensor(v)) for v in losses.values()), losses

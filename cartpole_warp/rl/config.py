@@ -105,6 +105,8 @@ class PpoConfig:
     """Learning-rate schedule: 'adaptive' (follow desired_kl) or 'fixed'."""
     desired_kl: Positive = 0.02
     """Target KL divergence per update for the adaptive schedule."""
+    use_mixed_precision: Flag = False
+    """rsl-rl's bfloat16 autocast of the losses' forward passes."""
 
 
 @dataclass
@@ -128,10 +130,12 @@ class RunnerConfig:
     wandb_project: Name = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""
     cuda_graph: Flag = True
-    """With SyncFreePPO on one GPU: capture one iteration's rollout and its update as CUDA graphs after the first
-    iterations and replay them, one launch each instead of thousands. Ignored on the CPU, under torchrun (a 2-GPU run
-    with graphs hung at its end), with rsl-rl's PPO (whose sampling and update read the device) and with console
-    'rsl_rl' (whose per-step bookkeeping does)."""
+    """With SyncFreePPO on a GPU: capture one iteration's rollout and its update (with its NCCL all-reduces under
+    torchrun) as CUDA graphs after the first iterations and replay them, one launch each instead of thousands.
+    Ignored on the CPU, with rsl-rl's PPO (whose sampling and update read the device) and with console 'rsl_rl'
+    (whose per-step bookkeeping does)."""
+    torch_compile_mode: Literal["default", "max-autotune-no-cudagraphs"] | None = None
+    """rsl-rl's torch.compile of the actor and critic (None: not compiled)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)

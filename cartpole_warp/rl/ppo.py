@@ -42,9 +42,8 @@ class SyncFreePPO(PPO):
         super().__init__(actor, critic, storage, *args, **kwargs)
         if self.rnd or self.symmetry or actor.is_recurrent or critic.is_recurrent:
             raise ValueError("SyncFreePPO supports feed-forward actor and critic without RND or symmetry; use PPO")
-        self.cuda_graph = cuda_graph and torch.device(self.device).type == "cuda" and not self.is_multi_gpu
-        """Capture the update's gradient steps as one CUDA graph (one GPU: under torchrun, a run whose graphs held
-        NCCL all-reduces hung at its end on the 2-GPU machine)."""
+        self.cuda_graph = cuda_graph and torch.device(self.device).type == "cuda"
+        """Capture the update's gradient steps (with their NCCL all-reduces under torchrun) as one CUDA graph."""
         self.optimizer = torch.optim.Adam(chain(self.actor.parameters(), self.critic.parameters()),
                                           lr=self._learning_rate, fused=True, capturable=self.cuda_graph)
         self._graph = TorchGraph(self.device) if self.cuda_graph else None
@@ -73,6 +72,11 @@ class SyncFreePPO(PPO):
             if "step" in state:
                 state["step"] = state["step"].to(param.device, torch.float32)
         return iteration
+
+    def release_graph(self):
+        """Free the captured update (before the process group is destroyed: ``TorchGraph.release``)."""
+        if self._graph is not None:
+            self._graph.release()
 
     def _adapt_learning_rate(self, kl_mean: torch.Tensor):
         """rsl-rl's rule, on the device: divide by 1.5 above twice the target KL, multiply by 1.5 below half of it."""

@@ -32,6 +32,7 @@ from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import STOP_REASONS, all_reduce_max, stop_code
 from .metrics import EpisodeStats, EpisodeSummary, is_solved
+from .ppo import SyncFreePPO
 from .rollout import Policy
 from .runs import Progress, RunError, atomic_write
 
@@ -62,7 +63,7 @@ class CartpoleRunner(OnPolicyRunner):
         self.stop_reason: str | None = None
         self._stop_requested: str | None = None
         graphable = (cfg.agent.cuda_graph and cfg.agent.algorithm.class_name == "SyncFreePPO"
-                     and not self.is_distributed and cfg.console != "rsl_rl"
+                     and cfg.console != "rsl_rl"
                      and torch.device(self.device).type == "cuda")
         self._rollout_graph = TorchGraph(self.device) if graphable else None
         self._rollout_input: TensorDict | None = None
@@ -107,6 +108,14 @@ class CartpoleRunner(OnPolicyRunner):
         if self.run_dir is not None:
             self.save(str(self.run_dir / f"model_{self.current_learning_iteration}.pt"))
             self.logger.stop_logging_writer()
+
+    def release_graphs(self):
+        """Free the captured rollout and update (``TorchGraph.release``: before the process group is destroyed);
+        ``learn`` captures them again."""
+        if self._rollout_graph is not None:
+            self._rollout_graph.release()
+        if isinstance(self.alg, SyncFreePPO):
+            self.alg.release_graph()
 
     def _rollout(self, obs: TensorDict) -> TensorDict:
         """One iteration's experience: ``num_steps_per_env`` x (act, env step, storage, episode statistics), then

@@ -76,6 +76,7 @@ class Training:
         try:
             self.runner.learn(self.cfg.agent.max_iterations)
         finally:
+            self.runner.release_graphs()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         if not self.ranks.writes:
