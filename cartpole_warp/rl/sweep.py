@@ -53,8 +53,10 @@ class RunResult:
     seed: int
     solved_iterations: int | None
     solved_time_s: float | None
-    env_steps_per_s: int
+    env_steps_per_s: int | None
     time_limit_fraction: float | None = None
+    error: str | None = None
+    """The failed command's last output lines (the sweep goes on with the next run)."""
 
 
 def variant_flags(variant: str) -> list[str]:
@@ -74,7 +76,8 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
              *(["--stop-when-solved"] if args.stop_when_solved else [])]
     done = subprocess.run([sys.executable, "-m", "cartpole_warp.train", *flags], capture_output=True, text=True)
     if done.returncode != 0:
-        raise RuntimeError(f"train.py {' '.join(flags)} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+        return RunResult(variant, seed, None, None, None,
+                         error=f"train.py {' '.join(flags)} failed:\n{done.stdout[-1000:]}\n{done.stderr[-2000:]}")
     (summary_path,) = sorted(log_dir.rglob("summary.json"), key=lambda p: p.stat().st_mtime)[-1:]
     summary = json.loads(summary_path.read_text())
     solved = summary["solved_at"] or {}
@@ -83,28 +86,33 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
         played = subprocess.run([sys.executable, "-m", "cartpole_warp.play", "--headless", "--run",
                                  str(summary_path.parent), "--device", args.device], capture_output=True, text=True)
         if played.returncode != 0:
-            raise RuntimeError(f"play.py on {summary_path.parent} failed:\n{played.stderr[-2000:]}")
+            result.error = f"play.py on {summary_path.parent} failed:\n{played.stderr[-2000:]}"
+            return result
         record = json.loads((summary_path.parent / "play" / "result.json").read_text())
         result.time_limit_fraction = record["time_limit_fraction"]
     return result
 
 
 def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
-    """Markdown table: one row per variant."""
+    """Markdown table: one row per variant (a failed run counts as not solved, and says so)."""
     rows = ["| train.py flags | solved | iterations to solved (median / max) | seconds to solved (median / max) | "
             "env-steps/s | play: reached time limit (min) |", "|---|---|---|---|---|---|"]
     for variant in variants:
         mine = [r for r in results if r.variant == variant]
         solved = [r for r in mine if r.solved_iterations is not None]
-        iterations = [r.solved_iterations for r in solved]
-        times = [r.solved_time_s for r in solved]
+        failed = sum(r.error is not None for r in mine)
+        speeds = [r.env_steps_per_s for r in mine if r.env_steps_per_s]
         played = [r.time_limit_fraction for r in mine if r.time_limit_fraction is not None]
-        rows.append(
-            f"| `{' '.join(variant_flags(variant))}` | {len(solved)}/{seeds} | "
-            + (f"{statistics.median(iterations):g} / {max(iterations)} | "
-               f"{statistics.median(times):.1f} / {max(times):.1f} | " if solved else "- | - | ")
-            + f"{statistics.median(r.env_steps_per_s for r in mine):,.0f} | "
-            + (f"{min(played):.1%} |" if played else "- |"))
+        cells = [f"`{' '.join(variant_flags(variant))}`",
+                 f"{len(solved)}/{seeds}" + (f" ({failed} failed)" if failed else "")]
+        if solved:
+            iterations, times = [r.solved_iterations for r in solved], [r.solved_time_s for r in solved]
+            cells += [f"{statistics.median(iterations):g} / {max(iterations)}",
+                      f"{statistics.median(times):.1f} / {max(times):.1f}"]
+        else:
+            cells += ["-", "-"]
+        cells += [f"{statistics.median(speeds):,.0f}" if speeds else "-", f"{min(played):.1%}" if played else "-"]
+        rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(rows)
 
 
@@ -117,10 +125,13 @@ def main(argv: list[str] | None = None) -> int:
             for seed in args.seeds:
                 result = run(args, variant, seed, root / f"v{args.variants.index(variant)}_s{seed}")
                 results.append(result)
+                if result.error:
+                    print(f"{variant} | seed {seed}: {result.error}", flush=True)
+                    continue
                 print(f"{variant} | seed {seed}: solved at {result.solved_iterations} after {result.solved_time_s} s, "
                       f"{result.env_steps_per_s:,} env-steps/s, play {result.time_limit_fraction}", flush=True)
     print(table(results, args.variants, len(args.seeds)))
-    return 0
+    return 1 if any(r.error for r in results) else 0
 
 
 if __name__ == "__main__":
