@@ -77,6 +77,7 @@ class CartpoleEnv:
         self._terminated = buf(wp.bool)
         self._truncated = buf(wp.bool)
         self._episode_length = buf(wp.int32)
+        self._steps_run = buf(wp.int32)
         self._episode_return = buf(float)
         self._ended_return = buf(float)
         self._ended_length = buf(wp.int32)
@@ -108,7 +109,9 @@ class CartpoleEnv:
 
     @property
     def episode_length_buf(self) -> torch.Tensor:
-        """(N,) int32 env steps into the current episode (zero-copy; assigning copies into it)."""
+        """(N,) int32 time-out counter: the episode is truncated when it reaches ``max_episode_length`` (zero-copy;
+        assigning copies into it, as rsl-rl's ``init_at_random_ep_len`` does to spread the time-outs). The
+        ``episode_length`` reported at the end is the steps the episode really ran, whatever was assigned."""
         return self._episode_length_t
 
     @episode_length_buf.setter
@@ -124,9 +127,10 @@ class CartpoleEnv:
             kernels.finish_step, dim=shard.num_envs,
             inputs=[self.params, self.layout, self.max_episode_length],
             outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
-                     rows(self._episode_length), rows(self._episode_return), rows(self._reward),
-                     rows(self._terminated), rows(self._truncated), rows(self._final_obs), rows(self._ended_return),
-                     rows(self._ended_length), rows(self._end_reason), shard.slot(self._nonfinite_states)],
+                     rows(self._episode_length), rows(self._steps_run), rows(self._episode_return),
+                     rows(self._reward), rows(self._terminated), rows(self._truncated), rows(self._final_obs),
+                     rows(self._ended_return), rows(self._ended_length), rows(self._end_reason),
+                     shard.slot(self._nonfinite_states)],
             device=self.device,
         )
 
@@ -140,7 +144,8 @@ class CartpoleEnv:
             s, rows = shard.scene, shard.rows
             wp.launch(kernels.reset_masked, dim=shard.num_envs, inputs=[rows(mask), self.params, self.layout],
                       outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
-                               rows(self._episode_length), rows(self._episode_return)], device=self.device)
+                               rows(self._episode_length), rows(self._steps_run), rows(self._episode_return)],
+                      device=self.device)
 
     def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
         shape = " or ".join(str(tuple(s)) for s in shapes)
@@ -196,7 +201,7 @@ class CartpoleEnv:
                 wp.launch(kernels.set_states_masked, dim=shard.num_envs,
                           inputs=[rows(self._states_in), rows(self._mask_in), self.layout],
                           outputs=[s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs), rows(self._episode_length),
-                                   rows(self._episode_return)], device=self.device)
+                                   rows(self._steps_run), rows(self._episode_return)], device=self.device)
         return self.obs_buf.clone()
 
     def close(self):

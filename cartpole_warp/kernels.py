@@ -109,6 +109,7 @@ def begin_episode(
     joint_qd: wp.array(dtype=float),
     obs: wp.array(dtype=wp.vec4),
     episode_length: wp.array(dtype=wp.int32),
+    steps_run: wp.array(dtype=wp.int32),
     episode_return: wp.array(dtype=float),
 ):
     base = env * layout.dofs_per_env
@@ -121,6 +122,7 @@ def begin_episode(
     joint_qd[base + layout.pole_dof] = state[3]
     obs[env] = state
     episode_length[env] = 0
+    steps_run[env] = 0
     episode_return[env] = 0.0
 
 
@@ -169,6 +171,7 @@ def finish_step(
     joint_qd: wp.array(dtype=float),
     obs: wp.array(dtype=wp.vec4),
     episode_length: wp.array(dtype=wp.int32),
+    steps_run: wp.array(dtype=wp.int32),
     episode_return: wp.array(dtype=float),
     reward: wp.array(dtype=float),
     terminated: wp.array(dtype=wp.bool),
@@ -184,10 +187,13 @@ def finish_step(
     ``obs`` holds the previous observation on entry and the next one on exit. A non-finite physics state
     ends the episode as a failure, reports the last finite observation and is counted; its end reason is that
     observation's (cart out of range, pole fell) when it was already beyond the limits, else "non-finite state".
+    ``episode_length`` counts toward the time limit (rsl-rl may start it at random values); ``steps_run`` counts the
+    steps the episode really ran, which ``ended_length`` reports.
     """
     env = wp.tid()
     o = read_obs(joint_q, joint_qd, env, layout)
     length = episode_length[env] + 1
+    steps = steps_run[env] + 1
     reason = END_NONE
     r = 0.0
     if is_finite4(o):
@@ -213,12 +219,13 @@ def finish_step(
     if reason == END_NONE:
         obs[env] = o
         episode_length[env] = length
+        steps_run[env] = steps
         episode_return[env] = ret
     else:
         ended_return[env] = ret
-        ended_length[env] = length
+        ended_length[env] = steps
         state = sample_reset_state(rng_state, env, p)
-        begin_episode(env, state, layout, joint_q, joint_qd, obs, episode_length, episode_return)
+        begin_episode(env, state, layout, joint_q, joint_qd, obs, episode_length, steps_run, episode_return)
 
 
 @wp.kernel
@@ -231,13 +238,14 @@ def reset_masked(
     joint_qd: wp.array(dtype=float),
     obs: wp.array(dtype=wp.vec4),
     episode_length: wp.array(dtype=wp.int32),
+    steps_run: wp.array(dtype=wp.int32),
     episode_return: wp.array(dtype=float),
 ):
     """Start a new episode from a random reset state in every env where ``mask`` is set."""
     env = wp.tid()
     if mask[env]:
         state = sample_reset_state(rng_state, env, p)
-        begin_episode(env, state, layout, joint_q, joint_qd, obs, episode_length, episode_return)
+        begin_episode(env, state, layout, joint_q, joint_qd, obs, episode_length, steps_run, episode_return)
 
 
 @wp.kernel
@@ -249,9 +257,10 @@ def set_states_masked(
     joint_qd: wp.array(dtype=float),
     obs: wp.array(dtype=wp.vec4),
     episode_length: wp.array(dtype=wp.int32),
+    steps_run: wp.array(dtype=wp.int32),
     episode_return: wp.array(dtype=float),
 ):
     """Start a new episode from the given state in every env where ``mask`` is set."""
     env = wp.tid()
     if mask[env]:
-        begin_episode(env, states[env], layout, joint_q, joint_qd, obs, episode_length, episode_return)
+        begin_episode(env, states[env], layout, joint_q, joint_qd, obs, episode_length, steps_run, episode_return)

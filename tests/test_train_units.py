@@ -20,6 +20,7 @@ from cartpole_warp.config import ConfigError
 from cartpole_warp.rl.config import RunnerConfig, TrainConfig, train_config
 from cartpole_warp.rl.curve import plot_learning_curve
 from cartpole_warp.rl.metrics import EpisodeStats, is_solved
+from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.rl.runs import (
     RunError,
     atomic_write,
@@ -156,8 +157,9 @@ def test_adapter_follows_the_rsl_rl_vecenv_contract():
     assert rewards.shape == (8,) and dones.shape == (8,) and dones.dtype == torch.int64
     assert not extras["time_outs"].any()
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
-    assert dones.tolist() == [1] * 8 and extras["time_outs"].all(), "episodes 4 steps in end at the 6-step limit"
-    assert extras["episode_length"].tolist() == [6] * 8 and extras["final_obs"].shape == (8, 4)
+    assert dones.tolist() == [1] * 8 and extras["time_outs"].all(), "counters set to 4 reach the 6-step limit"
+    assert extras["episode_length"].tolist() == [2] * 8, "the reported length is the steps really run"
+    assert extras["final_obs"].shape == (8, 4)
     assert obs["policy"].shape == (8, 4) and env.episode_length_buf.tolist() == [0] * 8
 
 
@@ -217,3 +219,19 @@ def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
                   RunResult("b", 0, None, None, 50)], ["a=1", "b"], seeds=2).splitlines()
     assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 100 | 99.0% |",
                         "| `--b` | 0/2 | - | - | 50 | - |"]
+
+
+@pytest.mark.parametrize("spread", [False, True])
+def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
+    cfg = TrainConfig()
+    cfg.env.num_envs, cfg.env.task.episode_length_s, cfg.agent.num_steps_per_env = 64, 0.1, 12
+    torch.manual_seed(0)
+    env = RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=0, task={"episode_length_s": 0.1}))
+    runner = CartpoleRunner(env, cfg, None)
+    runner.learn(1, init_at_random_ep_len=spread)
+    first = runner.progress.history[0]
+    assert first["time_limit_fraction"] > 0.95, "a 6-step limit ends nearly every episode by time"
+    if spread:
+        assert first["mean_episode_length"] < 5.5, "first episodes cut short by their random counters say so"
+    else:
+        assert first["mean_episode_length"] > 5.8

@@ -119,6 +119,10 @@ class RunnerConfig:
     """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
     max_iterations: Annotated[Count, tyro.conf.arg(aliases=("--max-iterations",))] = 150
     """PPO iterations to run (on --resume: iterations to add)."""
+    init_at_random_ep_len: Flag = False
+    """Start training with each env's time-out counter at a random point of the time limit (rsl-rl's ``learn``
+    argument, as Isaac Lab uses it): time-outs, hence resets, spread over every iteration instead of arriving all
+    at once. Reported episode lengths stay the steps each episode really ran."""
     save_interval: Count = 50
     """Write a checkpoint every this many iterations (and always at the end)."""
     experiment_name: Name = "cartpole"
@@ -143,7 +147,7 @@ class RunnerConfig:
     def to_rsl_rl(self) -> dict:
         """rsl-rl's ``train_cfg`` dict: class names added, our own fields left out."""
         cfg = dataclasses.asdict(self)
-        for key in ("max_iterations", "experiment_name", "wandb_project", "cuda_graph"):
+        for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph"):
             del cfg[key]
         cfg["actor"]["class_name"] = "MLPModel"
         cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"

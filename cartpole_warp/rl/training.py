@@ -74,7 +74,7 @@ class Training:
         ``summary.json``, and return it (None in the processes that do not write)."""
         previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
-            self.runner.learn(self.cfg.agent.max_iterations)
+            self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
         finally:
             self.runner.release_graphs()
             for sig, handler in previous.items():
