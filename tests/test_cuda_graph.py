@@ -36,6 +36,8 @@ def test_graphed_iterations_equal_launched_ones(cuda):
     graphed.release_graphs()
     assert graphed._rollout_graph.graph is None and graphed.alg._graph.graph is None
     for r in (graphed, launched):
+        torch.manual_seed(2)
+        torch.cuda.manual_seed(2)
         r.learn(3)
     assert graphed._rollout_graph.graph is not None, "learn captures again after release_graphs"
     for ours, theirs in zip(graphed.alg.actor.parameters(), launched.alg.actor.parameters(), strict=True):
