@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -170,6 +171,29 @@ class TorchGraph:
                 yield
             finally:
                 wp.capture_end()
+
+
+class PhaseClock:
+    """Seconds of consecutive phases of work on ``device`` without making the host wait: ``mark(i)`` between the
+    phases records a CUDA event on a GPU (whose work runs after the host has queued it), the host clock on the CPU;
+    ``seconds()`` waits for the last mark and returns each phase's seconds."""
+
+    def __init__(self, device: str, phases: int):
+        self.cuda = torch.device(device).type == "cuda"
+        self._marks: list[Any] = ([torch.cuda.Event(enable_timing=True) for _ in range(phases + 1)] if self.cuda
+                                  else [0.0] * (phases + 1))
+
+    def mark(self, i: int):
+        if self.cuda:
+            self._marks[i].record()
+        else:
+            self._marks[i] = time.perf_counter()
+
+    def seconds(self) -> list[float]:
+        if not self.cuda:
+            return [b - a for a, b in zip(self._marks, self._marks[1:])]
+        self._marks[-1].synchronize()
+        return [a.elapsed_time(b) / 1e3 for a, b in zip(self._marks, self._marks[1:])]
 
 
 def capturing(device: str) -> bool:

@@ -8,6 +8,7 @@ import inspect
 import io
 import math
 import os
+import time
 import typing
 
 import pytest
@@ -215,10 +216,10 @@ def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
     cfg, _, _ = resolve(flags)
     agent = cfg.agent
     assert (agent.cuda_graph, agent.actor.hidden_dims, agent.algorithm.class_name) == (False, [64, 64], "PPO")
-    rows = table([RunResult("a=1", 0, 50, 1.0, 100, 0.99), RunResult("a=1", 1, None, None, None, error="boom"),
+    rows = table([RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.99), RunResult("a=1", 1, None, None, None, error="x"),
                   RunResult("b", 0, None, None, 50)], ["a=1", "b"], seeds=2).splitlines()
-    assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 100 | 99.0% |",
-                        "| `--b` | 0/2 | - | - | 50 | - |"]
+    assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 3.0 + 4.5 | 100 | 99.0% |",
+                        "| `--b` | 0/2 | - | - | - | 50 | - |"]
 
 
 @pytest.mark.parametrize("spread", [False, True])
@@ -235,3 +236,16 @@ def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
         assert first["mean_episode_length"] < 5.5, "first episodes cut short by their random counters say so"
     else:
         assert first["mean_episode_length"] > 5.8
+
+
+def test_phase_clock_times_each_phase_on_the_cpu():
+    from cartpole_warp.runtime import PhaseClock
+
+    clock = PhaseClock("cpu", phases=2)
+    clock.mark(0)
+    time.sleep(0.01)
+    clock.mark(1)
+    time.sleep(0.2)
+    clock.mark(2)
+    first, second = clock.seconds()
+    assert 0.01 <= first < second and second >= 0.2

@@ -27,7 +27,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
-from ..runtime import TorchGraph
+from ..runtime import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import STOP_REASONS, all_reduce_max, stop_code
@@ -67,6 +67,8 @@ class CartpoleRunner(OnPolicyRunner):
                      and torch.device(self.device).type == "cuda")
         self._rollout_graph = TorchGraph(self.device) if graphable else None
         self._rollout_input: TensorDict | None = None
+        self._clock = PhaseClock(self.device, phases=2)
+        """Collection and learning time of each iteration, on the device."""
         self.add_git_repo_to_log(__file__)
 
     @property
@@ -94,13 +96,14 @@ class CartpoleRunner(OnPolicyRunner):
         self._end_iteration = self._first_iteration + num_learning_iterations
         self._start = self._tick = time.perf_counter()
         for it in range(self._first_iteration, self._end_iteration):
-            start = time.perf_counter()
+            self._clock.mark(0)
             with torch.inference_mode():
                 obs = self._collect(obs)
-            collected = time.perf_counter()
+            self._clock.mark(1)
             loss_dict = self.alg.update()
+            self._clock.mark(2)
             self.current_learning_iteration = it
-            self._end_of_iteration(it, collected - start, time.perf_counter() - collected, loss_dict)
+            self._end_of_iteration(it, loss_dict)
             if self.stop_reason is not None:
                 break
             if self.run_dir is not None and it % self.cfg["save_interval"] == 0:
@@ -142,16 +145,18 @@ class CartpoleRunner(OnPolicyRunner):
         self._rollout_input.copy_(obs)
         return self._rollout_graph(lambda: self._rollout(self._rollout_input))
 
-    def _end_of_iteration(self, it: int, collect_time: float, learn_time: float, loss_dict: dict):
+    def _end_of_iteration(self, it: int, loss_dict: dict):
+        stats = self.episodes.pop(all_processes=self.is_distributed)
+        collect_time, learn_time = self._clock.seconds()
         now = time.perf_counter()
         iteration_time, self._tick = now - self._tick, now
         steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.gpu_world_size
-        stats = self.episodes.pop(all_processes=self.is_distributed)
         solved = is_solved(stats.mean_length, stats.mean_reward_per_step, self.env.max_episode_length)
         p = self.progress
         p.iterations, p.env_steps, p.train_time_s = it + 1, p.env_steps + steps, p.train_time_s + iteration_time
         p.history.append({"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
-                          **_episode_means(stats), "env_steps_per_s": steps / iteration_time, "solved": solved})
+                          **_episode_means(stats), "env_steps_per_s": steps / iteration_time,
+                          "collection_ms": collect_time * 1e3, "learning_ms": learn_time * 1e3, "solved": solved})
         if solved and p.solved_at is None:
             p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3)}
         if self.train_cfg.console == "rsl_rl":

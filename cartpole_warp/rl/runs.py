@@ -154,6 +154,10 @@ class RunSummary:
     train_time_s: float
     setup_time_s: float
     env_steps_per_s: int | None
+    collection_ms: float | None
+    """Median over the iterations of one iteration's collection (rollout and returns), measured on the device."""
+    learning_ms: float | None
+    """Median over the iterations of one iteration's PPO update, measured on the device."""
     final: dict
     """Episode means of the last iteration in which episodes finished."""
     max_episode_length: int | None

@@ -7,8 +7,9 @@ followed by ``play --headless`` on its final policy), and the table says what ea
 A variant is train.py's flags written ``name=value`` (or ``name`` for a switch such as ``agent.no-cuda-graph``)
 without the dashes, several in one quoted string; a list value is comma-separated (``agent.actor.hidden-dims=64,64``).
 
-Per variant: how many seeds solved, the iterations and training seconds to solved (median and worst), env-steps/s
-including PPO, and with ``--play`` the worst fraction of play.py's episodes that reached the time limit.
+Per seed and per variant: the iterations and training seconds to solved (median and worst over the seeds), the
+milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s including
+PPO, and with ``--play`` the fraction of play.py's episodes that reached the time limit (the worst seed's).
 """
 
 from __future__ import annotations
@@ -54,6 +55,8 @@ class RunResult:
     solved_iterations: int | None
     solved_time_s: float | None
     env_steps_per_s: int | None
+    collection_ms: float | None = None
+    learning_ms: float | None = None
     time_limit_fraction: float | None = None
     error: str | None = None
     """The failed command's last output lines (the sweep goes on with the next run)."""
@@ -81,7 +84,8 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     (summary_path,) = sorted(log_dir.rglob("summary.json"), key=lambda p: p.stat().st_mtime)[-1:]
     summary = json.loads(summary_path.read_text())
     solved = summary["solved_at"] or {}
-    result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"])
+    result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"],
+                       summary["collection_ms"], summary["learning_ms"])
     if args.play:
         played = subprocess.run([sys.executable, "-m", "cartpole_warp.play", "--headless", "--run",
                                  str(summary_path.parent), "--device", args.device], capture_output=True, text=True)
@@ -96,12 +100,14 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
 def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
     """Markdown table: one row per variant (a failed run counts as not solved, and says so)."""
     rows = ["| train.py flags | solved | iterations to solved (median / max) | seconds to solved (median / max) | "
-            "env-steps/s | play: reached time limit (min) |", "|---|---|---|---|---|---|"]
+            "ms per iteration: collection + learning | env-steps/s | play: reached time limit (min) |",
+            "|---|---|---|---|---|---|---|"]
     for variant in variants:
         mine = [r for r in results if r.variant == variant]
         solved = [r for r in mine if r.solved_iterations is not None]
         failed = sum(r.error is not None for r in mine)
         speeds = [r.env_steps_per_s for r in mine if r.env_steps_per_s]
+        timed = [r for r in mine if r.collection_ms is not None]
         played = [r.time_limit_fraction for r in mine if r.time_limit_fraction is not None]
         cells = [f"`{' '.join(variant_flags(variant))}`",
                  f"{len(solved)}/{seeds}" + (f" ({failed} failed)" if failed else "")]
@@ -111,6 +117,8 @@ def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
                       f"{statistics.median(times):.1f} / {max(times):.1f}"]
         else:
             cells += ["-", "-"]
+        cells.append(f"{statistics.median(r.collection_ms for r in timed):.1f} + "
+                     f"{statistics.median(r.learning_ms for r in timed):.1f}" if timed else "-")
         cells += [f"{statistics.median(speeds):,.0f}" if speeds else "-", f"{min(played):.1%}" if played else "-"]
         rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(rows)
@@ -128,8 +136,10 @@ def main(argv: list[str] | None = None) -> int:
                 if result.error:
                     print(f"{variant} | seed {seed}: {result.error}", flush=True)
                     continue
-                print(f"{variant} | seed {seed}: solved at {result.solved_iterations} after {result.solved_time_s} s, "
-                      f"{result.env_steps_per_s:,} env-steps/s, play {result.time_limit_fraction}", flush=True)
+                print(f"{variant} | seed {seed}: solved at iteration {result.solved_iterations} after "
+                      f"{result.solved_time_s} s | per iteration: collection {result.collection_ms} ms, learning "
+                      f"{result.learning_ms} ms | {result.env_steps_per_s:,} env-steps/s | play "
+                      f"{result.time_limit_fraction}", flush=True)
     print(table(results, args.variants, len(args.seeds)))
     return 1 if any(r.error for r in results) else 0
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import signal
+import statistics
 import time
 from pathlib import Path
 
@@ -27,6 +28,12 @@ from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_co
 
 SOLVED_DEFINITION = (f"mean episode length >= {SOLVED_LENGTH_FRACTION:.0%} of the time limit and mean reward per step "
                      f">= {SOLVED_REWARD_PER_STEP} over one iteration's finished episodes")
+
+
+def median_of(history: list[dict], key: str) -> float | None:
+    """Median of ``key`` over the iterations that recorded it, rounded to microseconds (None if none did)."""
+    values = [h[key] for h in history if key in h]
+    return round(statistics.median(values), 3) if values else None
 
 
 class Training:
@@ -93,6 +100,8 @@ class Training:
             train_time_s=round(progress.train_time_s, 3),
             setup_time_s=round(self.setup_time_s, 3),
             env_steps_per_s=round(progress.env_steps / progress.train_time_s) if progress.train_time_s else None,
+            collection_ms=median_of(progress.history, "collection_ms"),
+            learning_ms=median_of(progress.history, "learning_ms"),
             final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
                                             "mean_reward_per_step", "time_limit_fraction")},
             max_episode_length=self.max_episode_length if has_limit else None,
