@@ -63,32 +63,13 @@ def resolve_device(device: str) -> str:
     return name
 
 
-def available_cores() -> int:
-    """CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0))
-
-
-@contextmanager
-def torch_threads(count: int) -> Iterator[None]:
-    """torch's CPU thread count set to ``count`` inside the block (0: left as it is)."""
-    if not count:
-        yield
-        return
-    previous = torch.get_num_threads()
-    torch.set_num_threads(count)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
-
-
 def shard_bounds(num_envs: int, device: str, cpu_threads: int, shardable: bool = True) -> list[tuple[int, int]]:
     """[start, stop) env ranges simulated as separate scenes. On the CPU (where Warp runs each kernel launch on one
     thread) one per thread (``cpu_threads``, 0 = the available cores), each of at least MIN_ENVS_PER_SHARD envs;
     on CUDA, or when the solver cannot be sharded, one."""
     if device != "cpu" or not shardable:
         return [(0, num_envs)]
-    threads = cpu_threads or available_cores()
+    threads = cpu_threads or len(os.sched_getaffinity(0))
     count = max(1, min(threads, num_envs // MIN_ENVS_PER_SHARD))
     edges = [num_envs * k // count for k in range(count + 1)]
     return list(zip(edges[:-1], edges[1:]))

@@ -249,14 +249,3 @@ def test_phase_clock_times_each_phase_on_the_cpu():
     clock.mark(2)
     first, second = clock.seconds()
     assert 0.01 <= first < second and second >= 0.2
-
-
-def test_torch_threads_are_set_inside_the_block_and_restored_after():
-    from cartpole_warp.runtime import torch_threads
-
-    before = torch.get_num_threads()
-    with torch_threads(before + 1):
-        assert torch.get_num_threads() == before + 1
-    assert torch.get_num_threads() == before
-    with torch_threads(0):
-        assert torch.get_num_threads() == before

@@ -181,12 +181,8 @@ class TrainConfig:
     stop_when_solved: Flag = False
     """End training at the first iteration that meets the 'solved' criterion."""
     torch_threads: NonNegativeInt = 1
-    """CPU threads for torch while the env steps (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on
-    small CPUs: the networks are tiny, and more threads fight the env's shard threads for cores (10x slower when
-    oversubscribed)."""
-    update_threads: NonNegativeInt = 0
-    """CPU threads for torch during the PPO update on the CPU, while the env is idle (0: one per available core). On
-    the 2-core CI machine, 2 threads make the update 49 -> 28 ms per iteration."""
+    """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
+    networks are tiny, and more threads fight the env and other processes for cores (10x slower when oversubscribed)."""
 
     def validate(self) -> TrainConfig:
         """Raise ConfigError naming the first invalid value and what is allowed; return self (each field's type and

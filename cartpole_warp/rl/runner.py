@@ -27,7 +27,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
-from ..runtime import PhaseClock, TorchGraph, available_cores, torch_threads
+from ..runtime import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import STOP_REASONS, all_reduce_max, stop_code
@@ -67,7 +67,6 @@ class CartpoleRunner(OnPolicyRunner):
                      and torch.device(self.device).type == "cuda")
         self._rollout_graph = TorchGraph(self.device) if graphable else None
         self._rollout_input: TensorDict | None = None
-        self._update_threads = (cfg.update_threads or available_cores()) if self.device == "cpu" else 0
         self._clock = PhaseClock(self.device, phases=2)
         """Collection and learning time of each iteration, on the device."""
         self.add_git_repo_to_log(__file__)
@@ -101,7 +100,7 @@ class CartpoleRunner(OnPolicyRunner):
             with torch.inference_mode():
                 obs = self._collect(obs)
             self._clock.mark(1)
-            loss_dict = self.update()
+            loss_dict = self.alg.update()
             self._clock.mark(2)
             self.current_learning_iteration = it
             self._end_of_iteration(it, loss_dict)
@@ -112,11 +111,6 @@ class CartpoleRunner(OnPolicyRunner):
         if self.run_dir is not None:
             self.save(str(self.run_dir / f"model_{self.current_learning_iteration}.pt"))
             self.logger.stop_logging_writer()
-
-    def update(self) -> dict[str, float]:
-        """The PPO update (``alg.update``), on the CPU with ``update_threads`` torch threads."""
-        with torch_threads(self._update_threads):
-            return self.alg.update()
 
     def release_graphs(self):
         """Free the captured rollout and update (``TorchGraph.release``: before the process group is destroyed);

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     rows["rollout step launched op by op (act + env.step + storage + stats)"] = timed_ms(rollout_step, device, steps)
     alg.storage.clear()
     rows[f"rollout of {steps} steps + returns, as training runs it"] = timed_ms(rollout, device, 1)
-    rows["update (all mini-batches), as training runs it"] = timed_ms(runner.update, device, 1)
+    rows["update (all mini-batches), as training runs it"] = timed_ms(alg.update, device, 1)
     iterations = 10
     rows["whole iteration (CartpoleRunner.learn)"] = timed_ms(lambda: runner.learn(iterations), device, 1) / iterations
     per_iteration = rows["whole iteration (CartpoleRunner.learn)"]
