@@ -179,13 +179,14 @@ class PhaseClock:
     ``seconds()`` waits for the last mark and returns each phase's seconds."""
 
     def __init__(self, device: str, phases: int):
+        self.device = device
         self.cuda = torch.device(device).type == "cuda"
         self._marks: list[Any] = ([torch.cuda.Event(enable_timing=True) for _ in range(phases + 1)] if self.cuda
                                   else [0.0] * (phases + 1))
 
     def mark(self, i: int):
         if self.cuda:
-            self._marks[i].record()
+            self._marks[i].record(torch.cuda.current_stream(self.device))
         else:
             self._marks[i] = time.perf_counter()
 
