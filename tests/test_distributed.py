@@ -12,7 +12,7 @@ import torch.multiprocessing
 
 from cartpole_warp.config import ConfigError, EnvConfig
 from cartpole_warp.rl.config import TrainConfig
-from cartpole_warp.rl.distributed import Ranks, all_reduce_max, all_reduce_sum, joint_stop, stop_code
+from cartpole_warp.rl.distributed import Ranks, all_reduce_sum, joint_stop
 from cartpole_warp.rl.metrics import EpisodeStats
 from cartpole_warp.rl.training import Training
 
@@ -37,11 +37,9 @@ def test_each_process_takes_its_gpu_and_seed_plus_rank():
         Ranks(4, 2, 2).env_config(env, cuda_devices=2)
 
 
-def test_the_joint_stop_is_the_strongest_wish():
-    assert joint_stop([stop_code(None), stop_code(None)]) is None
-    assert joint_stop([stop_code("solved"), stop_code("solved")]) == "solved"
-    assert joint_stop([stop_code(None), stop_code("interrupted")]) == "interrupted"
-    assert joint_stop([stop_code("solved"), stop_code("interrupted")]) == "interrupted"
+@pytest.mark.parametrize("wanted", [None, "solved", "interrupted"])
+def test_a_process_alone_stops_as_it_wishes(wanted):
+    assert joint_stop(wanted, "cpu", distributed=False) == wanted
 
 
 def _two_processes(rank, store, results):
@@ -50,9 +48,11 @@ def _two_processes(rank, store, results):
     ended = torch.tensor([True, rank == 1])
     stats.add(ended, torch.tensor([10.0 * (rank + 1), 30.0]), torch.tensor([10, 30]), torch.tensor([False, True]))
     summary = stats.pop(all_processes=True)
-    code = all_reduce_max(torch.tensor([stop_code("interrupted" if rank == 1 else None)]), True)
+    interrupted = joint_stop("interrupted" if rank == 1 else None, "cpu", True)
+    solved = joint_stop("solved" if rank == 0 else None, "cpu", True)
+    strongest = joint_stop("solved" if rank == 0 else "interrupted", "cpu", True)
     total = all_reduce_sum(torch.tensor([float(rank + 1)]), True)
-    results[rank] = (summary.episodes, summary.mean_return, joint_stop([int(code.item())]), total.item())
+    results[rank] = (summary.episodes, summary.mean_return, (interrupted, solved, strongest), total.item())
     torch.distributed.destroy_process_group()
 
 
@@ -60,7 +60,7 @@ def test_statistics_and_stop_are_reduced_over_processes(tmp_path):
     results = torch.multiprocessing.Manager().dict()
     torch.multiprocessing.spawn(_two_processes, args=(str(tmp_path / "store"), results), nprocs=2)
     # rank 0 ended one episode (return 10), rank 1 two (returns 20 and 30): 3 episodes, mean 20, on both ranks
-    assert results[0] == results[1] == (3, 20.0, "interrupted", 3.0)
+    assert results[0] == results[1] == (3, 20.0, ("interrupted", "solved", "interrupted"), 3.0)
 
 
 def test_only_rank_zero_writes_the_run(tmp_path):

@@ -68,14 +68,14 @@ SINGLE_PROCESS = Ranks()
 """A process not started by torchrun."""
 
 
-def stop_code(reason: str | None) -> int:
-    """The code of a stop reason (``STOP_REASONS``)."""
-    return STOP_REASONS.index(reason)
-
-
-def joint_stop(codes: list[int]) -> str | None:
-    """The decision of all processes from each one's stop code: the largest (what the all-reduce computes)."""
-    return STOP_REASONS[max(codes)]
+def joint_stop(wanted: str | None, device: str, distributed: bool) -> str | None:
+    """The stop decision of all processes from this one's wish (a ``STOP_REASONS`` entry): the strongest wish of any
+    process (the all-reduced largest code); a process alone decides by itself, without touching the device."""
+    if not distributed:
+        return wanted
+    code = torch.tensor([STOP_REASONS.index(wanted)], device=device)
+    torch.distributed.all_reduce(code, op=torch.distributed.ReduceOp.MAX)
+    return STOP_REASONS[int(code.item())]
 
 
 def all_reduce_sum(values: torch.Tensor, distributed: bool) -> torch.Tensor:
@@ -84,9 +84,3 @@ def all_reduce_sum(values: torch.Tensor, distributed: bool) -> torch.Tensor:
         torch.distributed.all_reduce(values, op=torch.distributed.ReduceOp.SUM)
     return values
 
-
-def all_reduce_max(values: torch.Tensor, distributed: bool) -> torch.Tensor:
-    """``values`` maximised over all processes, in place (nothing to do for one process)."""
-    if distributed:
-        torch.distributed.all_reduce(values, op=torch.distributed.ReduceOp.MAX)
-    return values

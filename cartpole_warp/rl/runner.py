@@ -30,7 +30,7 @@ from tensordict import TensorDict
 from ..runtime import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
-from .distributed import STOP_REASONS, all_reduce_max, stop_code
+from .distributed import joint_stop
 from .metrics import EpisodeStats, EpisodeSummary, is_solved
 from .ppo import SyncFreePPO
 from .rollout import Policy
@@ -168,8 +168,7 @@ class CartpoleRunner(OnPolicyRunner):
             self._write_metrics(it, stats, loss_dict, steps / iteration_time, collect_time, learn_time)
             print(self._progress_line(it, stats, steps / iteration_time, solved, now), flush=True)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
-        code = all_reduce_max(torch.tensor([stop_code(wanted)], device=self.device), self.is_distributed)
-        self.stop_reason = STOP_REASONS[int(code.item())]
+        self.stop_reason = joint_stop(wanted, self.device, self.is_distributed)
 
     def _write_metrics(self, it: int, stats: EpisodeSummary, loss_dict: dict, steps_per_s: float,
                        collect_time: float, learn_time: float):
