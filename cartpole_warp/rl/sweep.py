@@ -25,6 +25,8 @@ from pathlib import Path
 
 import tyro
 
+from .runs import PLAY_DIR, SUMMARY_FILE, latest_run
+
 
 @dataclass
 class SweepArgs:
@@ -81,18 +83,18 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     if done.returncode != 0:
         return RunResult(variant, seed, None, None, None,
                          error=f"train.py {' '.join(flags)} failed:\n{done.stdout[-1000:]}\n{done.stderr[-2000:]}")
-    (summary_path,) = sorted(log_dir.rglob("summary.json"), key=lambda p: p.stat().st_mtime)[-1:]
-    summary = json.loads(summary_path.read_text())
+    run_dir = latest_run(log_dir, "cartpole")
+    summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     solved = summary["solved_at"] or {}
     result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"],
                        summary["collection_ms"], summary["learning_ms"])
     if args.play:
         played = subprocess.run([sys.executable, "-m", "cartpole_warp.play", "--headless", "--run",
-                                 str(summary_path.parent), "--device", args.device], capture_output=True, text=True)
+                                 str(run_dir), "--device", args.device], capture_output=True, text=True)
         if played.returncode != 0:
-            result.error = f"play.py on {summary_path.parent} failed:\n{played.stderr[-2000:]}"
+            result.error = f"play.py on {run_dir} failed:\n{played.stderr[-2000:]}"
             return result
-        record = json.loads((summary_path.parent / "play" / "result.json").read_text())
+        record = json.loads((run_dir / PLAY_DIR / "result.json").read_text())
         result.time_limit_fraction = record["time_limit_fraction"]
     return result
 
@@ -129,9 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)
-        for variant in args.variants:
+        for number, variant in enumerate(args.variants):
             for seed in args.seeds:
-                result = run(args, variant, seed, root / f"v{args.variants.index(variant)}_s{seed}")
+                result = run(args, variant, seed, root / f"v{number}_s{seed}")
                 results.append(result)
                 if result.error:
                     print(f"{variant} | seed {seed}: {result.error}", flush=True)
