@@ -181,8 +181,11 @@ class EnvFrames(Sequence):
         first = self._geometry(0)
         self.view = SideView.around(first, [first.body_transforms(env.scene.state_0)], width_px, reach=True)
 
+    def _shard(self, index: int):
+        return next(s for s in self.env.shards if s.start <= index < s.stop)
+
     def _geometry(self, index: int) -> Geometry:
-        shard = next(s for s in self.env.shards if s.start <= index < s.stop)
+        shard = self._shard(index)
         key = (shard.index, index - shard.start)
         if key not in self._geometries:
             self._geometries[key] = Geometry(shard.scene.model, world=index - shard.start)
@@ -195,6 +198,5 @@ class EnvFrames(Sequence):
         if not -len(self) <= index < len(self):
             raise IndexError(f"env {index} of {len(self)}")
         index %= len(self)
-        shard = next(s for s in self.env.shards if s.start <= index < s.stop)
-        transforms = self._geometry(index).body_transforms(shard.scene.state_0)
+        transforms = self._geometry(index).body_transforms(self._shard(index).scene.state_0)
         return np.asarray(self.view.image(transforms))
