@@ -128,6 +128,7 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert isaac_lab.to_rsl_rl()["actor"]["distribution_cfg"]["class_name"] == "GaussianDistribution"
     assert (isaac_lab.num_steps_per_env, isaac_lab.algorithm.num_learning_epochs, isaac_lab.algorithm.num_mini_batches,
             isaac_lab.algorithm.desired_kl) == (16, 5, 4, 0.01)
+    assert isaac_lab.actor.activation == isaac_lab.critic.activation == "elu", "Isaac Lab's cartpole uses ELU"
 
 
 def test_solved_needs_both_length_and_reward_per_step():
@@ -238,14 +239,24 @@ def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
         assert first["mean_episode_length"] > 5.8
 
 
-def test_phase_clock_times_each_phase_on_the_cpu():
+def test_phase_clock_times_each_phase_on_its_device(device):
+    """On the CPU the host clock; on a GPU CUDA events, which time the device's work, not the host's queueing."""
     from cartpole_warp.runtime import PhaseClock
 
-    clock = PhaseClock("cpu", phases=2)
+    if device.startswith("cuda"):
+        matrix = torch.randn(4096, 4096, device=device)
+
+        def work(units):
+            for _ in range(units):
+                matrix @ matrix
+    else:
+        def work(units):
+            time.sleep(0.01 * units)
+    clock = PhaseClock(device, phases=2)
     clock.mark(0)
-    time.sleep(0.01)
+    work(1)
     clock.mark(1)
-    time.sleep(0.2)
+    work(20)
     clock.mark(2)
     first, second = clock.seconds()
-    assert 0.01 <= first < second and second >= 0.2
+    assert 0 < first < second and second > 5 * first
