@@ -120,7 +120,7 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert cfg["actor"]["class_name"] == cfg["critic"]["class_name"] == "MLPModel"
     assert cfg["actor"]["hidden_dims"] == [32, 32] and cfg["actor"]["distribution_cfg"] == {
         "class_name": "cartpole_warp.rl.ppo:SyncFreeGaussian", "init_std": 1.0}
-    assert cfg["num_steps_per_env"] == 12 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
+    assert cfg["num_steps_per_env"] == 8 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
     assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
     assert RunnerConfig(logger="none").to_rsl_rl()["logger"]["class_name"].endswith(":NullLogWriter")
     isaac_lab = train_config("isaac_lab").agent

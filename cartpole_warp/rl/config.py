@@ -75,7 +75,7 @@ class ActorConfig(ModelConfig):
 @dataclass
 class PpoConfig:
     """rsl-rl ``PPO`` hyper-parameters. The defaults are tuned for wall-clock time to a solved cartpole (one epoch of
-    six mini-batches, a looser KL target, the sync-free update); ``configs/isaac_lab.yaml`` holds Isaac Lab's."""
+    eight mini-batches, a looser KL target, the sync-free update); ``configs/isaac_lab.yaml`` holds Isaac Lab's."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
@@ -84,7 +84,7 @@ class PpoConfig:
 
     num_learning_epochs: Count = 1
     """Passes over each rollout per iteration."""
-    num_mini_batches: Count = 6
+    num_mini_batches: Count = 8
     """Mini-batches per epoch."""
     clip_param: Positive = 0.2
     """PPO ratio clip."""
@@ -116,7 +116,7 @@ class RunnerConfig:
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    num_steps_per_env: Count = 12
+    num_steps_per_env: Count = 8
     """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
     max_iterations: Annotated[Count, tyro.conf.arg(aliases=("--max-iterations",))] = 150
     """PPO iterations to run (on --resume: iterations to add)."""
