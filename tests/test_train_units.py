@@ -210,17 +210,21 @@ def test_learning_curve_png_decodes(tmp_path):
 
 
 def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
-    from cartpole_warp.rl.sweep import RunResult, table, variant_flags
+    from cartpole_warp.rl.sweep import RunResult, seed_row, table, variant_flags
 
     flags = variant_flags("config=isaac_lab agent.no-cuda-graph agent.actor.hidden-dims=64,64")
     assert flags == ["--config", "isaac_lab", "--agent.no-cuda-graph", "--agent.actor.hidden-dims", "64", "64"]
     cfg, _, _ = resolve(flags)
     agent = cfg.agent
     assert (agent.cuda_graph, agent.actor.hidden_dims, agent.algorithm.class_name) == (False, [64, 64], "PPO")
-    rows = table([RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.99), RunResult("a=1", 1, None, None, None, error="x"),
-                  RunResult("b", 0, None, None, 50)], ["a=1", "b"], seeds=2).splitlines()
+    results = [RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.99), RunResult("a=1", 1, None, None, None, error="x"),
+               RunResult("b", 0, None, None, 50)]
+    rows = table(results, ["a=1", "b"], seeds=2).splitlines()
     assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 3.0 + 4.5 | 100 | 99.0% |",
                         "| `--b` | 0/2 | - | - | - | 50 | - |"]
+    assert [seed_row(r) for r in results] == ["| `--a 1` | 0 | 50 | 1.0 | 3.0 + 4.5 | 100 | 99.0% |",
+                                              "| `--a 1` | 1 | failed | - | - | - | - |",
+                                              "| `--b` | 0 | not solved | - | - | 50 | - |"]
 
 
 @pytest.mark.parametrize("spread", [False, True])

@@ -7,9 +7,11 @@ followed by ``play --headless`` on its final policy), and the table says what ea
 A variant is train.py's flags written ``name=value`` (or ``name`` for a switch such as ``agent.no-cuda-graph``)
 without the dashes, several in one quoted string; a list value is comma-separated (``agent.actor.hidden-dims=64,64``).
 
-Per seed and per variant: the iterations and training seconds to solved (median and worst over the seeds), the
-milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s including
-PPO, and with ``--play`` the fraction of play.py's episodes that reached the time limit (the worst seed's).
+It prints two markdown tables. Per seed, as each run ends: the iteration and training seconds at which it was
+solved, the milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s
+including PPO, and with ``--play`` the fraction of play.py's episodes that reached the time limit. Per variant, at the
+end: the same over the seeds (iterations and seconds as median and worst, play as the worst seed's). A failed run's
+output goes to stderr, and it counts as not solved.
 """
 
 from __future__ import annotations
@@ -99,6 +101,26 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     return result
 
 
+SEED_TABLE_HEADER = ("| train.py flags | seed | solved at iteration | seconds to solved | "
+                     "ms per iteration: collection + learning | env-steps/s | play: reached time limit |\n"
+                     "|---|---|---|---|---|---|---|")
+
+
+def seed_row(result: RunResult) -> str:
+    """Markdown row of one run."""
+    cells = [f"`{' '.join(variant_flags(result.variant))}`", str(result.seed)]
+    if result.error:
+        cells += ["failed"] + ["-"] * 4
+    else:
+        solved = result.solved_iterations is not None
+        cells += [str(result.solved_iterations) if solved else "not solved",
+                  f"{result.solved_time_s:.1f}" if solved else "-",
+                  f"{result.collection_ms:.1f} + {result.learning_ms:.1f}" if result.collection_ms is not None else "-",
+                  f"{result.env_steps_per_s:,}" if result.env_steps_per_s else "-",
+                  f"{result.time_limit_fraction:.1%}" if result.time_limit_fraction is not None else "-"]
+    return "| " + " | ".join(cells) + " |"
+
+
 def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
     """Markdown table: one row per variant (a failed run counts as not solved, and says so)."""
     rows = ["| train.py flags | solved | iterations to solved (median / max) | seconds to solved (median / max) | "
@@ -129,6 +151,7 @@ def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     args = tyro.cli(SweepArgs, args=sys.argv[1:] if argv is None else argv, description=__doc__)
     results = []
+    print(SEED_TABLE_HEADER, flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)
         for number, variant in enumerate(args.variants):
@@ -136,12 +159,9 @@ def main(argv: list[str] | None = None) -> int:
                 result = run(args, variant, seed, root / f"v{number}_s{seed}")
                 results.append(result)
                 if result.error:
-                    print(f"{variant} | seed {seed}: {result.error}", flush=True)
-                    continue
-                print(f"{variant} | seed {seed}: solved at iteration {result.solved_iterations} after "
-                      f"{result.solved_time_s} s | per iteration: collection {result.collection_ms} ms, learning "
-                      f"{result.learning_ms} ms | {result.env_steps_per_s:,} env-steps/s | play "
-                      f"{result.time_limit_fraction}", flush=True)
+                    print(result.error, file=sys.stderr, flush=True)
+                print(seed_row(result), flush=True)
+    print()
     print(table(results, args.variants, len(args.seeds)))
     return 1 if any(r.error for r in results) else 0
 
