@@ -106,19 +106,31 @@ SEED_TABLE_HEADER = ("| train.py flags | seed | solved at iteration | seconds to
                      "|---|---|---|---|---|---|---|")
 
 
+def _markdown_row(cells: list[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _flags_cell(variant: str) -> str:
+    return f"`{' '.join(variant_flags(variant))}`"
+
+
+def _ms_cell(collection_ms: float, learning_ms: float) -> str:
+    return f"{collection_ms:.1f} + {learning_ms:.1f}"
+
+
 def seed_row(result: RunResult) -> str:
     """Markdown row of one run."""
-    cells = [f"`{' '.join(variant_flags(result.variant))}`", str(result.seed)]
+    cells = [_flags_cell(result.variant), str(result.seed)]
     if result.error:
         cells += ["failed"] + ["-"] * 4
     else:
         solved = result.solved_iterations is not None
         cells += [str(result.solved_iterations) if solved else "not solved",
                   f"{result.solved_time_s:.1f}" if solved else "-",
-                  f"{result.collection_ms:.1f} + {result.learning_ms:.1f}" if result.collection_ms is not None else "-",
+                  _ms_cell(result.collection_ms, result.learning_ms) if result.collection_ms is not None else "-",
                   f"{result.env_steps_per_s:,}" if result.env_steps_per_s else "-",
                   f"{result.time_limit_fraction:.1%}" if result.time_limit_fraction is not None else "-"]
-    return "| " + " | ".join(cells) + " |"
+    return _markdown_row(cells)
 
 
 def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
@@ -133,18 +145,17 @@ def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
         speeds = [r.env_steps_per_s for r in mine if r.env_steps_per_s]
         timed = [r for r in mine if r.collection_ms is not None]
         played = [r.time_limit_fraction for r in mine if r.time_limit_fraction is not None]
-        cells = [f"`{' '.join(variant_flags(variant))}`",
-                 f"{len(solved)}/{seeds}" + (f" ({failed} failed)" if failed else "")]
+        cells = [_flags_cell(variant), f"{len(solved)}/{seeds}" + (f" ({failed} failed)" if failed else "")]
         if solved:
             iterations, times = [r.solved_iterations for r in solved], [r.solved_time_s for r in solved]
             cells += [f"{statistics.median(iterations):g} / {max(iterations)}",
                       f"{statistics.median(times):.1f} / {max(times):.1f}"]
         else:
             cells += ["-", "-"]
-        cells.append(f"{statistics.median(r.collection_ms for r in timed):.1f} + "
-                     f"{statistics.median(r.learning_ms for r in timed):.1f}" if timed else "-")
+        cells.append(_ms_cell(statistics.median(r.collection_ms for r in timed),
+                              statistics.median(r.learning_ms for r in timed)) if timed else "-")
         cells += [f"{statistics.median(speeds):,.0f}" if speeds else "-", f"{min(played):.1%}" if played else "-"]
-        rows.append("| " + " | ".join(cells) + " |")
+        rows.append(_markdown_row(cells))
     return "\n".join(rows)
 
 
