@@ -1,13 +1,32 @@
-"""Write ``usd/cartpole.usda``: the classic Isaac cartpole authored with UsdPhysics schemas.
+"""Write the cartpole stages, authored with UsdPhysics schemas: ``usd/cartpole.usda`` (the classic Isaac cartpole)
+and ``usd/cartpole_dmc.usda`` (dm_control's cartpole, the model of its ``swingup`` task).
 
-Run: ``python usd/make_cartpole.py [output.usda]`` (default: next to this script).
+Run: ``python usd/make_cartpole.py`` writes both next to this script; ``python usd/make_cartpole.py out.usda
+[out_dmc.usda]`` writes the classic stage (and the dm_control one) elsewhere.
 
-Geometry and masses are the physical facts of the classic Isaac cartpole; every inertia tensor is
-derived from its box and mass here and authored on the stage, so simulators read it rather than guess.
-Up axis Z, metres, kilograms. The rail lies along Y; the cart slides along Y; the pole hinges about X.
+Both stages follow one convention, so the same loader and the same closed-form check apply: up axis Z, metres,
+kilograms; the articulation root on /cartpole; a fixed rail body (``railJoint``); the cart slides along Y
+(PrismaticJoint ``cartJoint``); the pole hinges about X (RevoluteJoint ``poleJoint``), upright at angle 0. Every
+body's mass, centre of mass and diagonal inertia are authored (MassAPI), derived here from its shape and mass, so
+simulators read them rather than guess.
+
+The classic Isaac cartpole: boxes; cart 1 kg, 0.2 x 0.25 x 0.2 m; pole 1 kg, 0.04 x 0.06 x 1 m, its centre of mass
+0.47 m above the hinge, which sits 0.12 m off the cart centre along X; cart travel +-4 m; gravity 9.81 m/s^2.
+
+dm_control's cartpole (``dm_control/suite/cartpole.xml``): cart box 0.4 x 0.3 x 0.2 m (MuJoCo half-sizes
+0.2 0.15 0.1, its long side along the slide), 1 kg; pole capsule ``fromto="0 0 0 0 0 1"`` of radius 0.045 m, 0.1 kg,
+its centre of mass 0.5 m above the hinge at the cart centre, with MuJoCo's capsule inertia (``capsule_inertia``);
+slider range +-1.8 m; gravity 9.81 m/s^2 (MuJoCo's default). The XML slides along X and hinges about Y; here the
+slide is along Y and the hinge about X, so a positive pole angle tips the pole towards -Y (towards -slide), where
+dm_control's positive hinge angle tips it towards +slide: the angle's sign is flipped, its cosine is not. Not
+modelled: the joint dampings (slider 5e-4 N s/m, hinge 2e-6 N m s/rad), the slider limit's ``solreflimit=".08 1"``,
+the actuator (a motor of gear 10 with ``ctrlrange="-1 1"``, i.e. up to 10 N on the cart: the env applies the force),
+the timestep (0.01 s, RK4), and the two decorative rail capsules (radius 0.02 m, 4 m long, 0.14 m apart), for which
+one 0.04 x 4 x 0.04 m box stands.
 """
 
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from pxr import Gf, Usd, UsdGeom, UsdPhysics
@@ -23,6 +42,18 @@ POLE_COM_ABOVE_HINGE_M = 0.47
 HINGE_OFFSET_FROM_CART_M = 0.12
 COLORS = {"rail": (0.35, 0.35, 0.38), "cart": (0.15, 0.45, 0.85), "pole": (0.9, 0.55, 0.1)}
 
+DMC_RAIL_SIZE_M = (0.04, 4.0, 0.04)
+DMC_CART_SIZE_M = (0.3, 0.4, 0.2)
+DMC_CART_MASS_KG = 1.0
+DMC_CART_TRAVEL_LIMIT_M = 1.8
+DMC_POLE_RADIUS_M = 0.045
+DMC_POLE_LENGTH_M = 1.0
+DMC_POLE_MASS_KG = 0.1
+DMC_COLORS = {"rail": (0.3, 0.5, 0.7), "cart": (0.7, 0.5, 0.3), "pole": (0.7, 0.5, 0.3)}
+"""dm_control's materials: ``decoration`` for the rails, ``self`` for the cart and the pole."""
+RAIL_MASS_KG = 1.0
+"""The rail is fixed to the world, so its mass never enters the dynamics."""
+
 
 def box_inertia(mass_kg, size_m):
     """Principal moments (kg m^2) of a solid box about its centre."""
@@ -30,26 +61,107 @@ def box_inertia(mass_kg, size_m):
     return (mass_kg * (y * y + z * z) / 12.0, mass_kg * (x * x + z * z) / 12.0, mass_kg * (x * x + y * y) / 12.0)
 
 
-def _body(stage, path, translate, box_size, box_center, mass_kg, color):
+def capsule_inertia(mass_kg, radius_m, height_m):
+    """Principal moments (kg m^2) about its centre of a solid capsule along Z, as MuJoCo computes them for a capsule
+    geom (``mjCGeom::SetInertia``, volume inertia): a cylinder of length ``height_m`` and two hemispherical caps of
+    radius ``radius_m``, one density throughout.
+
+    With r the radius and h the cylinder's length, the caps (one sphere) take m_s = m 4r / (4r + 3h) of the mass and
+    the cylinder m_c = m - m_s. Across the axis: m_c (3r^2 + h^2) / 12 + 2 m_s r^2 / 5 + m_s h (3r + 2h) / 8 (each
+    hemisphere's own moment, moved by the parallel-axis theorem from its centre of mass 3r/8 beyond the cylinder's
+    end); along the axis: m_c r^2 / 2 + 2 m_s r^2 / 5.
+    """
+    r, h = radius_m, height_m
+    sphere = mass_kg * 4.0 * r / (4.0 * r + 3.0 * h)
+    cylinder = mass_kg - sphere
+    caps_own = 2.0 * sphere * r * r / 5.0
+    across = cylinder * (3.0 * r * r + h * h) / 12.0 + caps_own + sphere * h * (3.0 * r + 2.0 * h) / 8.0
+    along = cylinder * r * r / 2.0 + caps_own
+    return (across, across, along)
+
+
+@dataclass(frozen=True)
+class Box:
+    """A solid box of ``size_m`` (a unit Cube scaled to it)."""
+
+    size_m: tuple
+
+    def inertia(self, mass_kg):
+        return box_inertia(mass_kg, self.size_m)
+
+    def define(self, stage, path, center):
+        geom = UsdGeom.Cube.Define(stage, path)
+        geom.CreateSizeAttr(1.0)
+        geom.AddTranslateOp().Set(Gf.Vec3d(*center))
+        geom.AddScaleOp().Set(Gf.Vec3f(*self.size_m))
+        return geom
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """A solid capsule along Z: a cylinder of ``height_m`` (UsdGeom's height, caps excluded) capped by hemispheres of
+    ``radius_m``."""
+
+    radius_m: float
+    height_m: float
+
+    def inertia(self, mass_kg):
+        return capsule_inertia(mass_kg, self.radius_m, self.height_m)
+
+    def define(self, stage, path, center):
+        geom = UsdGeom.Capsule.Define(stage, path)
+        geom.CreateAxisAttr(UsdGeom.Tokens.z)
+        geom.CreateRadiusAttr(self.radius_m)
+        geom.CreateHeightAttr(self.height_m)
+        geom.AddTranslateOp().Set(Gf.Vec3d(*center))
+        return geom
+
+
+@dataclass(frozen=True)
+class Cartpole:
+    """The physical facts of one cartpole stage."""
+
+    rail: Box
+    cart: Box
+    cart_mass_kg: float
+    pole: Box | Capsule
+    pole_mass_kg: float
+    pole_com_above_hinge_m: float
+    hinge_offset_from_cart_m: float
+    """Along X, from the cart's centre to the hinge (and the pole body's origin)."""
+    cart_travel_limit_m: float
+    colors: dict
+    gravity_m_s2: float = GRAVITY_M_S2
+
+
+CLASSIC = Cartpole(rail=Box(RAIL_SIZE_M), cart=Box(CART_SIZE_M), cart_mass_kg=CART_MASS_KG, pole=Box(POLE_SIZE_M),
+                   pole_mass_kg=POLE_MASS_KG, pole_com_above_hinge_m=POLE_COM_ABOVE_HINGE_M,
+                   hinge_offset_from_cart_m=HINGE_OFFSET_FROM_CART_M, cart_travel_limit_m=CART_TRAVEL_LIMIT_M,
+                   colors=COLORS)
+DMC = Cartpole(rail=Box(DMC_RAIL_SIZE_M), cart=Box(DMC_CART_SIZE_M), cart_mass_kg=DMC_CART_MASS_KG,
+               pole=Capsule(DMC_POLE_RADIUS_M, DMC_POLE_LENGTH_M), pole_mass_kg=DMC_POLE_MASS_KG,
+               pole_com_above_hinge_m=DMC_POLE_LENGTH_M / 2, hinge_offset_from_cart_m=0.0,
+               cart_travel_limit_m=DMC_CART_TRAVEL_LIMIT_M, colors=DMC_COLORS)
+
+
+def _body(stage, path, translate, shape, shape_center, mass_kg, color):
+    """A rigid body with its mass properties authored and one shown collision shape centred on its centre of mass."""
     body = UsdGeom.Xform.Define(stage, path)
     body.AddTranslateOp().Set(Gf.Vec3d(*translate))
     UsdPhysics.RigidBodyAPI.Apply(body.GetPrim())
     mass = UsdPhysics.MassAPI.Apply(body.GetPrim())
     mass.CreateMassAttr(mass_kg)
-    mass.CreateCenterOfMassAttr(Gf.Vec3f(*box_center))
-    mass.CreateDiagonalInertiaAttr(Gf.Vec3f(*box_inertia(mass_kg, box_size)))
+    mass.CreateCenterOfMassAttr(Gf.Vec3f(*shape_center))
+    mass.CreateDiagonalInertiaAttr(Gf.Vec3f(*shape.inertia(mass_kg)))
     mass.CreatePrincipalAxesAttr(Gf.Quatf(1.0))
-    geom = UsdGeom.Cube.Define(stage, f"{path}/geom")
-    geom.CreateSizeAttr(1.0)
-    geom.AddTranslateOp().Set(Gf.Vec3d(*box_center))
-    geom.AddScaleOp().Set(Gf.Vec3f(*box_size))
+    geom = shape.define(stage, f"{path}/geom", shape_center)
     geom.CreateDisplayColorAttr([Gf.Vec3f(*color)])
     UsdPhysics.CollisionAPI.Apply(geom.GetPrim())
     return body
 
 
-def build_stage():
-    """Author the cartpole stage in memory and return it."""
+def build_stage(spec: Cartpole = CLASSIC):
+    """Author the cartpole stage of ``spec`` in memory and return it."""
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -57,16 +169,17 @@ def build_stage():
 
     scene = UsdPhysics.Scene.Define(stage, "/physicsScene")
     scene.CreateGravityDirectionAttr(Gf.Vec3f(0.0, 0.0, -1.0))
-    scene.CreateGravityMagnitudeAttr(GRAVITY_M_S2)
+    scene.CreateGravityMagnitudeAttr(spec.gravity_m_s2)
 
     root = UsdGeom.Xform.Define(stage, "/cartpole")
     stage.SetDefaultPrim(root.GetPrim())
     UsdPhysics.ArticulationRootAPI.Apply(root.GetPrim())
 
-    rail = _body(stage, "/cartpole/rail", (0, 0, 0), RAIL_SIZE_M, (0, 0, 0), 1.0, COLORS["rail"])
-    cart = _body(stage, "/cartpole/cart", (0, 0, 0), CART_SIZE_M, (0, 0, 0), CART_MASS_KG, COLORS["cart"])
-    pole = _body(stage, "/cartpole/pole", (HINGE_OFFSET_FROM_CART_M, 0, 0), POLE_SIZE_M,
-                 (0, 0, POLE_COM_ABOVE_HINGE_M), POLE_MASS_KG, COLORS["pole"])
+    hinge = (spec.hinge_offset_from_cart_m, 0, 0)
+    rail = _body(stage, "/cartpole/rail", (0, 0, 0), spec.rail, (0, 0, 0), RAIL_MASS_KG, spec.colors["rail"])
+    cart = _body(stage, "/cartpole/cart", (0, 0, 0), spec.cart, (0, 0, 0), spec.cart_mass_kg, spec.colors["cart"])
+    pole = _body(stage, "/cartpole/pole", hinge, spec.pole, (0, 0, spec.pole_com_above_hinge_m), spec.pole_mass_kg,
+                 spec.colors["pole"])
 
     fixed = UsdPhysics.FixedJoint.Define(stage, "/cartpole/railJoint")
     fixed.CreateBody1Rel().SetTargets([rail.GetPath()])
@@ -75,28 +188,35 @@ def build_stage():
     cart_joint.CreateBody0Rel().SetTargets([rail.GetPath()])
     cart_joint.CreateBody1Rel().SetTargets([cart.GetPath()])
     cart_joint.CreateAxisAttr(UsdPhysics.Tokens.y)
-    cart_joint.CreateLowerLimitAttr(-CART_TRAVEL_LIMIT_M)
-    cart_joint.CreateUpperLimitAttr(CART_TRAVEL_LIMIT_M)
+    cart_joint.CreateLowerLimitAttr(-spec.cart_travel_limit_m)
+    cart_joint.CreateUpperLimitAttr(spec.cart_travel_limit_m)
 
     pole_joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/poleJoint")
     pole_joint.CreateBody0Rel().SetTargets([cart.GetPath()])
     pole_joint.CreateBody1Rel().SetTargets([pole.GetPath()])
     pole_joint.CreateAxisAttr(UsdPhysics.Tokens.x)
-    pole_joint.CreateLocalPos0Attr(Gf.Vec3f(HINGE_OFFSET_FROM_CART_M, 0.0, 0.0))
+    pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge))
     pole_joint.CreateLocalPos1Attr(Gf.Vec3f(0.0, 0.0, 0.0))
     return stage
 
 
-def stage_text():
-    """The stage as USDA text, exactly as ``main`` writes it."""
-    stage = build_stage()
+def stage_text(spec: Cartpole = CLASSIC):
+    """The stage of ``spec`` (default: the classic cartpole) as USDA text, exactly as ``main`` writes it."""
+    stage = build_stage(spec)  # held: the layer lives only as long as its stage
     return stage.GetRootLayer().ExportToString()
 
 
+def dmc_stage_text():
+    """dm_control's cartpole stage as USDA text, exactly as ``main`` writes it."""
+    return stage_text(DMC)
+
+
 def main():
-    out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_name("cartpole.usda")
-    out.write_text(stage_text())
-    print(f"wrote {out}")
+    here = Path(__file__).parent
+    outs = [Path(arg) for arg in sys.argv[1:3]] or [here / "cartpole.usda", here / "cartpole_dmc.usda"]
+    for out, text in zip(outs, (stage_text(), dmc_stage_text())):
+        out.write_text(text)
+        print(f"wrote {out}")
 
 
 if __name__ == "__main__":
