@@ -1,24 +1,34 @@
-"""cartpole_warp: a batched cartpole RL environment on NVIDIA Warp and Newton.
+"""cartpole_warp: batched cart-pole RL environments on NVIDIA Warp and Newton, trained with rsl-rl.
 
     import cartpole_warp
-    env = cartpole_warp.make_env(num_envs=4096, device="cpu", seed=0, preset="default")
+    env = cartpole_warp.make_env(num_envs=4096, device="cpu", seed=0)             # the default task, cartpole-balance
+    env = cartpole_warp.tasks.make("cartpole-swingup", num_envs=4096, device="cpu", seed=0)
     obs, info = env.reset()
     obs, reward, terminated, truncated, info = env.step(actions)
 
-The task is ``config.py`` (settings), ``scene.py`` (the USD stage in Newton), ``kernels.py`` (observations, reward,
-resets in Warp) and ``env.py`` (``CartpoleEnv``); ``runtime.py`` is robot-agnostic machinery; ``wrappers/`` presents
-the env to rsl-rl, gymnasium and Stable-Baselines3; ``rl/`` trains with rsl-rl; ``viz/`` draws pictures.
+Tasks live in ``tasks/`` (one module each, found by the registry ``cartpole_warp.tasks``); the rest is machinery that
+knows no task: ``config.py`` (the config engine), ``scene.py`` (USD -> Newton), ``env.py`` (``BatchedEnv``),
+``runtime.py`` (devices, shards, graphs), ``wrappers/`` (rsl-rl, gymnasium, SB3), ``evaluation.py`` (policy rollouts
+and episode statistics), ``viz/`` (pictures), ``rl/`` (training with rsl-rl) and ``tools/`` (benchmarks).
 
-Importing the package registers the gymnasium ids ``cartpole_warp/Cartpole-v0`` (preset 'default') and
-``cartpole_warp/CartpoleTutorial-v0`` (preset 'tutorial'); see ``cartpole_warp.wrappers.gymnasium``.
+Importing the package registers every task's gymnasium ids (``cartpole_warp/Cartpole-v0``,
+``cartpole_warp/CartpoleTutorial-v0``, ``cartpole_warp/CartpoleSwingup-v0``); see ``cartpole_warp.wrappers.gymnasium``.
 """
 
-from .config import ConfigError, EnvConfig, SimConfig, TaskConfig, env_config
-from .env import CartpoleEnv, make_env
+from . import tasks
+from .config import ConfigError, EnvConfig, SimConfig, TaskConfig
+from .env import BatchedEnv
 from .scene import StageError
 from .wrappers.gymnasium import CartpoleGymEnv, CartpoleVectorEnv, register_envs
 
+
+def make_env(num_envs: int | None = None, device: str | None = None, seed: int | None = None,
+             preset: str | None = None, **overrides) -> BatchedEnv:
+    """The default task's env (``tasks.DEFAULT_TASK``, cartpole-balance): ``tasks.make`` with that name."""
+    return tasks.make(tasks.DEFAULT_TASK, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
+
+
 register_envs()
 
-__all__ = ["CartpoleEnv", "CartpoleGymEnv", "CartpoleVectorEnv", "ConfigError", "EnvConfig", "SimConfig", "StageError",
-           "TaskConfig", "env_config", "make_env"]
+__all__ = ["BatchedEnv", "CartpoleGymEnv", "CartpoleVectorEnv", "ConfigError", "EnvConfig", "SimConfig", "StageError",
+           "TaskConfig", "make_env", "tasks"]

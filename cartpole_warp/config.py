@@ -1,25 +1,27 @@
-"""The env's configuration: dataclasses with a docstring under every field, and YAML presets.
+"""The config engine (machinery): constrained field types, checks of dicts against dataclasses, presets as partial
+YAML overlays, ``ConfigError``; and the dataclasses every env shares (``SimConfig``, ``TaskConfig``, ``EnvConfig``).
 
-The dataclass defaults are the single source of truth. A preset (``configs/<name>.yaml``) is a partial override of
-them; tyro turns the same dataclasses into command-line flags (``--env.sim.solver mujoco``, the docstrings become
-``--help``), and pydantic checks dicts (presets, a run's saved ``config.yaml``, ``make_env``'s keyword overrides)
-against their types. The stage and the presets ship inside the wheel (``cartpole_warp/usd``,
-``cartpole_warp/configs``) and sit at the top of a checkout (``usd/``, ``configs/``). No warp or newton here.
+The dataclass defaults are the single source of truth. A task's own settings are a ``TaskConfig`` subclass in its
+task module; ``EnvConfig[BalanceConfig]`` is the env configuration of that task. A preset (``configs/<name>.yaml``) is
+a partial override; tyro turns the same dataclasses into command-line flags (``--env.sim.solver mujoco``, docstrings
+become ``--help``), and pydantic checks dicts (presets, a run's saved ``config.yaml``, keyword overrides) against
+their types, once at each boundary (``from_dict``). No warp or newton here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib.resources
 import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import pydantic
 import tyro
 import yaml
+
+from .files import data_path
 
 Solver = Literal["featherstone", "mujoco"]
 """Newton solvers: ``SolverFeatherstone`` or ``SolverMuJoCo`` (on mujoco-warp)."""
@@ -56,14 +58,6 @@ class ConfigError(ValueError):
     """A configuration value or preset is invalid; the message names it."""
 
 
-def data_path(folder: str, name: str = "") -> Path:
-    """A file shipped with the package (``folder`` is 'usd' or 'configs'): inside the installed package, or at the
-    top of the repository when running from a checkout."""
-    packaged = Path(str(importlib.resources.files("cartpole_warp"))) / folder
-    base = packaged if packaged.is_dir() else Path(__file__).resolve().parent.parent / folder
-    return base / name if name else base
-
-
 @dataclass
 class SimConfig:
     """Physics: stage, solver and timing."""
@@ -78,14 +72,10 @@ class SimConfig:
     """Newton solver: 'featherstone' (SolverFeatherstone) or 'mujoco' (SolverMuJoCo on mujoco-warp)."""
     mass_matrix_interval: Count = 2
     """SolverFeatherstone recomputes the joint-space mass matrix every this many physics steps; must divide
-    decimation (the captured step replays the choice). 2 with decimation 2 = once per env step, ~25% faster."""
+    decimation (the captured step replays the choice)."""
     stage_path: str | None = None
-    """USD stage holding the cartpole articulation (metres, kilograms; any up axis and prim names); None: the cartpole
-    stage shipped with the package (usd/cartpole.usda)."""
-    cart_joint: Name = "cartJoint"
-    """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
-    pole_joint: Name = "poleJoint"
-    """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
+    """USD stage holding the robot's articulation (metres, kilograms; any up axis and prim names); None: the task's
+    stage shipped with the package (usd/)."""
     capture: Capture = "auto"
     """Graph capture of the env step: 'auto' (CUDA, and CPU where measured faster: always), 'on' or 'off'."""
     cpu_threads: NonNegativeInt = 0
@@ -97,63 +87,40 @@ class SimConfig:
         """Duration of one env step (s)."""
         return self.physics_dt * self.decimation
 
-    @property
-    def stage(self) -> Path:
-        """The USD stage file to load."""
-        return Path(self.stage_path) if self.stage_path else data_path("usd", "cartpole.usda")
-
 
 @dataclass
 class TaskConfig:
-    """The tutorial's cartpole task: action scale, reward, termination, reset ranges, time limit.
-
-    Every float field reaches the Warp kernels as a field of the same name (``kernels.TaskParams``)."""
+    """What every task's settings hold; a task module subclasses it with its own fields (every float field reaches
+    the task's Warp functions under its own name, see ``env.kernel_params``)."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    max_push_effort_n: NonNegative = 400.0
-    """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
-    reset_dist_m: Positive = 3.0
-    """Terminate when |cart_pos| exceeds this (m)."""
-    max_pole_angle_rad: Positive = math.pi / 2
-    """Terminate when |pole_angle| exceeds this (rad)."""
-    failure_reward: Finite = -2.0
-    """Reward that replaces the shaped reward on the step that terminates."""
-    alive_reward: Finite = 1.0
-    """Constant term of the shaped reward."""
-    pole_angle_weight: NonNegative = 1.0
-    """Weight of pole_angle^2 (per rad^2) subtracted from the reward."""
-    cart_vel_weight: NonNegative = 0.01
-    """Weight of |cart_vel| (per m/s) subtracted from the reward."""
-    pole_vel_weight: NonNegative = 0.005
-    """Weight of |pole_vel| (per rad/s) subtracted from the reward."""
-    reset_cart_pos_m: NonNegative = 1.0
-    """Reset samples cart_pos ~ U(-this, this) (m)."""
-    reset_cart_vel_m_s: NonNegative = 0.5
-    """Reset samples cart_vel ~ U(-this, this) (m/s)."""
-    reset_pole_angle_rad: NonNegative = 0.125 * math.pi
-    """Reset samples pole_angle ~ U(-this, this) (rad)."""
-    reset_pole_vel_rad_s: NonNegative = 0.25 * math.pi
-    """Reset samples pole_vel ~ U(-this, this) (rad/s)."""
     episode_length_s: Positive | None = 10.0
-    """Time limit (s) after which an episode is truncated; None for none (the tutorial has none)."""
+    """Time limit (s) after which an episode is truncated; None for none."""
+
+    def validate(self, env: EnvConfig) -> None:
+        """ConfigError for values of this task that do not fit together (its fields' own ranges are checked by their
+        types); nothing to check by default."""
+
+
+TaskT = TypeVar("TaskT", bound=TaskConfig)
 
 
 @dataclass
-class EnvConfig:
-    """Everything ``make_env`` needs."""
+class EnvConfig(Generic[TaskT]):
+    """Everything an env needs; ``task`` is the task's own ``TaskConfig`` subclass."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
     num_envs: Annotated[Count, tyro.conf.arg(aliases=("--num-envs",))] = 4096
-    """Number of cartpoles simulated in parallel (per GPU when torchrun starts several processes)."""
+    """Number of robots simulated in parallel (per GPU when torchrun starts several processes)."""
     device: Annotated[str, tyro.conf.arg(aliases=("--device",))] = "cpu"
     """Warp / torch device: 'cpu', 'cuda' or 'cuda:N' (under torchrun each process takes cuda:$LOCAL_RANK)."""
     seed: Annotated[Seed, tyro.conf.arg(aliases=("--seed",))] = 0
     """Seed of the per-env reset RNG (and of torch in train.py; seed + rank under torchrun); the same seed gives the
     same trajectory."""
     sim: SimConfig = field(default_factory=SimConfig)
-    task: TaskConfig = field(default_factory=TaskConfig)
+    task: TaskT = None  # type: ignore[assignment]  # the task's settings: always given (tasks.env_config builds it)
 
     @property
     def max_episode_length(self) -> int:
@@ -162,29 +129,21 @@ class EnvConfig:
             return NO_TIME_LIMIT
         return max(1, math.ceil(self.task.episode_length_s / self.sim.env_dt - 1e-9))
 
-    def validate(self) -> EnvConfig:
+    def validate(self) -> EnvConfig[TaskT]:
         """Raise ConfigError naming the first invalid value and what is allowed; return self. Each field's type and
-        range are written where it is defined; the checks here relate fields."""
-        if isinstance(self.num_envs, int) and self.num_envs > MAX_NUM_ENVS:
-            need_gb = self.num_envs * BYTES_PER_ENV / 1e9
-            raise ConfigError(f"num_envs={self.num_envs:,} would need about {need_gb:,.0f} GB "
-                              f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
-        checked(self)
-        sim, task = self.sim, self.task
+        range are checked where dicts become configs (``from_dict``); the checks here relate fields."""
+        sim, limit_s = self.sim, self.task.episode_length_s
+        require(self.num_envs <= MAX_NUM_ENVS,
+                f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
+                f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
         require(sim.decimation % sim.mass_matrix_interval == 0,
                 f"sim.mass_matrix_interval={sim.mass_matrix_interval} must divide sim.decimation={sim.decimation}")
-        require(task.reset_cart_pos_m < task.reset_dist_m,
-                f"task.reset_cart_pos_m={task.reset_cart_pos_m:g} must be below "
-                f"task.reset_dist_m={task.reset_dist_m:g} (else episodes end as they start)")
-        require(task.reset_pole_angle_rad < task.max_pole_angle_rad,
-                f"task.reset_pole_angle_rad={task.reset_pole_angle_rad:g} must be below task.max_pole_angle_rad="
-                f"{task.max_pole_angle_rad:g} (else episodes end as they start)")
-        if task.episode_length_s is not None:
-            steps = task.episode_length_s / sim.env_dt
+        if limit_s is not None:
+            steps = limit_s / sim.env_dt
             require(steps <= MAX_EPISODE_LENGTH,
-                    f"task.episode_length_s={task.episode_length_s:g} is {steps:,.0f} env steps; the step counters "
-                    f"hold at most {MAX_EPISODE_LENGTH:,} ({MAX_EPISODE_LENGTH * sim.env_dt:,.0f} s): use None for "
-                    "no limit")
+                    f"task.episode_length_s={limit_s:g} is {steps:,.0f} env steps; the step counters hold at most "
+                    f"{MAX_EPISODE_LENGTH:,} ({MAX_EPISODE_LENGTH * sim.env_dt:,.0f} s): use None for no limit")
+        self.task.validate(self)
         return self
 
 
@@ -197,10 +156,35 @@ def require(ok: bool, message: str):
 Config = TypeVar("Config")
 
 
+def _field_type(owner: Any, name: str) -> Any:
+    """The type of field ``name`` of the dataclass ``owner`` (a generic alias such as ``EnvConfig[X]`` resolved)."""
+    origin = typing.get_origin(owner) or owner
+    hint = typing.get_type_hints(origin)[name]
+    if isinstance(hint, TypeVar) and typing.get_origin(owner) is not None:
+        hint = dict(zip(origin.__parameters__, typing.get_args(owner)))[hint]
+    return typing.get_origin(hint) if typing.get_origin(hint) is Annotated else hint
+
+
 def checked(cfg: Config) -> Config:
-    """``cfg`` checked against its field types and ranges (ConfigError naming the first bad field); returns it."""
-    from_dict(type(cfg), dataclasses.asdict(cfg), "invalid config")
+    """``cfg`` (built in code or by tyro, which checks no ranges) checked against its field types and ranges; returns
+    it (ConfigError naming the first bad field)."""
+    from_dict(config_type(cfg), dataclasses.asdict(cfg), "invalid config")
     return cfg
+
+
+def config_type(cfg: Any) -> Any:
+    """The dataclass of ``cfg``, parametrized by the types its generic fields hold (``EnvConfig[BalanceConfig]``)."""
+    cls = type(cfg)
+    if not getattr(cls, "__parameters__", ()):
+        return cls
+    hints, bound = typing.get_type_hints(cls), {}
+    for f in dataclasses.fields(cls):
+        hint, value = hints[f.name], getattr(cfg, f.name)
+        if isinstance(hint, TypeVar):
+            bound[hint] = type(value)
+        elif dataclasses.is_dataclass(value) and typing.get_args(hint):
+            bound.update(zip(typing.get_args(hint), typing.get_args(config_type(value))))
+    return cls[tuple(bound[p] for p in cls.__parameters__)]
 
 
 def from_dict(cls: type[Config], data: Any, where: str = "config") -> Config:
@@ -214,8 +198,8 @@ def from_dict(cls: type[Config], data: Any, where: str = "config") -> Config:
         if first["type"] == "unexpected_keyword_argument":
             owner = cls
             for part in first["loc"][:-1]:
-                owner = typing.get_type_hints(owner)[part]
-            known = ", ".join(f.name for f in dataclasses.fields(owner))
+                owner = _field_type(owner, part)
+            known = ", ".join(f.name for f in dataclasses.fields(typing.get_origin(owner) or owner))
             raise ConfigError(f"{where}: unknown config key {key!r}; valid keys here: {known}") from None
         raise ConfigError(f"{where}: {key}: {first['msg']} (got {first['input']!r})") from None
 
@@ -228,11 +212,10 @@ def merge(base: dict, overrides: dict) -> dict:
     return out
 
 
-def override(cfg: Config, overrides: dict, where: str = "overrides") -> Config:
-    """A copy of the dataclass ``cfg`` with a nested dict of ``overrides`` applied and checked."""
-    if not isinstance(overrides, dict):
-        raise ConfigError(f"{where}: expected a mapping, got {overrides!r}")
-    return from_dict(type(cfg), merge(dataclasses.asdict(cfg), overrides), where)
+def overrides_dict(overrides: Any, where: str) -> dict:
+    """``overrides`` checked to be a mapping (ConfigError naming ``where`` otherwise)."""
+    require(isinstance(overrides, dict), f"{where}: expected a mapping, got {overrides!r}")
+    return overrides
 
 
 def presets() -> list[str]:
@@ -251,12 +234,4 @@ def load_preset(preset: str) -> dict:
         data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as err:
         raise ConfigError(f"cannot parse {path}: {err}") from None
-    require(isinstance(data, dict), f"{path}: expected a mapping at the top level")
-    return data
-
-
-def env_config(preset: str = "default", **overrides) -> EnvConfig:
-    """EnvConfig from the dataclass defaults, the preset's ``env`` section, then nested keyword overrides
-    (``num_envs=64, sim={"solver": "mujoco"}``; None values are ignored)."""
-    cfg = override(EnvConfig(), load_preset(preset).get("env", {}), f"preset {preset!r}")
-    return override(cfg, {k: v for k, v in overrides.items() if v is not None}).validate()
+    return overrides_dict(data, str(path))

@@ -1,45 +1,289 @@
-"""``CartpoleEnv``: the batched cartpole on persistent Warp buffers, with a captured step and autoreset."""
+"""``BatchedEnv``: the machinery of a batched env on Newton and Warp, robot-agnostic. A task subclasses it with its sizes,
+its stage and joint roles, and four Warp functions (``TaskFunctions``); everything else lives here.
 
-from __future__ import annotations
+One env step: clip actions to [-1, 1] -> joint forces of the task -> ``decimation`` solver steps -> observe, reward and
+end reason of the task -> time limit, returns and lengths, keep the final observation -> masked reset of the ended envs
+from the task's reset sampler. All of it is Warp work on persistent arrays, captured once as a graph per CPU shard (or
+on CUDA) and replayed. The kernels are built from the task's functions once per task (Warp closures) and compiled into
+one module per task.
+"""
+
+import abc
+import functools
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, ClassVar
 
 import torch
 import warp as wp
 
-from . import kernels
-from .config import EnvConfig, env_config
+from .config import EnvConfig, TaskConfig
+from .files import data_path
 from .runtime import Shard, ShardedStep, TorchOrder, resolve_device, shard_bounds
-from .scene import SHARDABLE_SOLVERS, Scene, build_scene
+from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene
+
+END_NONE = wp.constant(0)
+END_TIME_LIMIT = wp.constant(1)
+END_NONFINITE = wp.constant(2)
+FIRST_TASK_END = 3
+"""A task's own end reasons (failures) are the codes FIRST_TASK_END, FIRST_TASK_END + 1, ... in its ``task_ends``."""
+COMMON_ENDS = ("running", "time_limit", "nonfinite_state")
+"""Names of the codes 0, 1, 2 of ``end_reason``, the same for every task."""
 
 
-class CartpoleEnv:
-    """Batched cartpole, the Isaac Sim "Custom RL Example using Stable Baselines" task.
+def kernel_params(config_class: type[TaskConfig]) -> type:
+    """The Warp struct of a task config's float fields, each under its own name: the task's constants in its
+    Warp functions (written once, in the dataclass)."""
+    fields = [name for name, kind in typing.get_type_hints(config_class).items() if kind is float]
+    name = f"{config_class.__name__}Params"
+    return wp.struct(type(name, (), {
+        "__annotations__": dict.fromkeys(fields, float),
+        "__module__": config_class.__module__,
+        "__qualname__": name,
+        "__doc__": f"The float fields of {config_class.__name__}, generated from it.",
+    }))
 
-    ==============  ==================================================================================
-    observation     (N, 4) float32: [cart_pos (m), cart_vel (m/s), pole_angle (rad), pole_vel (rad/s)]
-    action          (N, 1) or (N,) float32, clipped to [-1, 1]; cart force = max_push_effort_n * action
-    reward          1 - pole_angle^2 - 0.01 |cart_vel| - 0.005 |pole_vel|; -2 on the terminating step
-    terminated      |cart_pos| > 3 m or |pole_angle| > pi/2, on the state after the physics step
-    truncated       episode length reaches ``max_episode_length`` env steps (not terminated)
-    reset           cart_pos ~ U(-1, 1), cart_vel ~ U(-0.5, 0.5), pole_angle ~ U(-pi/8, pi/8),
-                    pole_vel ~ U(-pi/4, pi/4); one RNG state per env, seeded by ``seed``
-    ==============  ==================================================================================
 
-    Envs that end are reset within the same ``step``: the returned observation is the new episode's
-    first one, and ``info["final_obs"]`` holds the observation at which the episode ended. ``step`` returns
-    fresh tensors; ``obs_buf`` and friends are the zero-copy views the next step overwrites.
+def params_of(params_type: type, task: TaskConfig) -> Any:
+    """The kernels' copy of a task config's constants."""
+    params = params_type()
+    for name in params_type.vars:
+        setattr(params, name, getattr(task, name))
+    return params
 
-    ``info`` keys (tensors on ``device``): ``final_obs`` (N, 4); ``episode_return`` (N,), ``episode_length``
-    (N,) and ``end_reason`` (N,) int32 (codes named by ``kernels.END_REASONS``), valid where
-    terminated | truncated; ``nonfinite_actions`` and ``nonfinite_states`` (scalars, totals since construction):
-    non-finite actions are applied as 0, and a non-finite physics state ends its episode as a failure whose
-    ``final_obs`` is the last finite observation.
+
+@dataclass(frozen=True)
+class TaskFunctions:
+    """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order of
+    the task's roles, ``Obs`` and ``Actions`` vectors of ``num_obs`` and ``num_actions`` floats, ``p`` the task's
+    ``kernel_params`` struct."""
+
+    observe: Any
+    """``(q: Joints, qd: Joints, p) -> Obs``: the observation of a joint state."""
+    evaluate: Any
+    """``(q: Joints, qd: Joints, action: Actions, p) -> (reward: float, end: int)`` on the state after the physics
+    step (``action`` already clipped to [-1, 1]); ``end`` is END_NONE or one of the task's codes (FIRST_TASK_END + i)."""
+    sample_reset: Any
+    """``(rng_state: wp.array(dtype=wp.uint32), env: int, p) -> (q: Joints, qd: Joints)``: a random start; advances
+    ``rng_state[env]``."""
+    joint_forces: Any
+    """``(action: Actions, p) -> Joints``: the generalised force (N or N m) on each role's joint for an action."""
+
+
+@wp.kernel
+def init_rng(seed: int, first_env: int, rng_state: wp.array(dtype=wp.uint32)):
+    """Seed each env's RNG from ``seed`` and its global index (``first_env`` + thread), whatever the sharding."""
+    env = wp.tid()
+    rng_state[env] = wp.rand_init(seed, first_env + env)
+
+
+@functools.cache
+def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP037 (no __future__ annotations: Warp
+    # reads the closure's kernel annotations as objects)
+    """The env kernels of a task: the machinery's step, reset and set-state kernels with the task's functions inlined,
+    one Warp module per task (compiled on first use, cached on disk)."""
+    fns, num_joints, num_actions = env_class.functions, len(env_class.joint_roles), env_class.num_actions
+    Joints = wp.types.vector(num_joints, float)
+    Actions = wp.types.vector(env_class.num_actions, float)
+    Obs = wp.types.vector(env_class.num_obs, float)
+    State = wp.types.vector(2 * num_joints, float)
+    Params = env_class.params_type
+    module = f"{env_class.__module__}.{env_class.__qualname__}.kernels"
+    kernel = functools.partial(wp.kernel, module=module, enable_backward=False)
+
+    @wp.func
+    def read_joints(joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), base: int,
+                    role_dofs: wp.array(dtype=int)):
+        q, qd = Joints(), Joints()
+        for r in range(num_joints):
+            q[r] = joint_q[base + role_dofs[r]]
+            qd[r] = joint_qd[base + role_dofs[r]]
+        return q, qd
+
+    @wp.func
+    def all_finite(q: Joints, qd: Joints):
+        ok = True
+        for r in range(num_joints):
+            ok = ok and wp.isfinite(q[r]) and wp.isfinite(qd[r])
+        return ok
+
+    @wp.func
+    def begin_episode(env: int, q: Joints, qd: Joints, p: Params, base: int, dofs_per_env: int,
+                      role_dofs: wp.array(dtype=int), joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
+                      last_q: wp.array(dtype=Joints), last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs),
+                      episode_length: wp.array(dtype=wp.int32), steps_run: wp.array(dtype=wp.int32),
+                      episode_return: wp.array(dtype=float)):
+        for d in range(dofs_per_env):
+            joint_q[base + d] = 0.0
+            joint_qd[base + d] = 0.0
+        for r in range(num_joints):
+            joint_q[base + role_dofs[r]] = q[r]
+            joint_qd[base + role_dofs[r]] = qd[r]
+        last_q[env] = q
+        last_qd[env] = qd
+        obs[env] = fns.observe(q, qd, p)
+        episode_length[env] = 0
+        steps_run[env] = 0
+        episode_return[env] = 0.0
+
+    @kernel
+    def apply_actions(p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int), actions: wp.array(dtype=Actions),
+                      joint_f: wp.array(dtype=float), nonfinite_action_count: wp.array(dtype=wp.int32)):
+        """Clip each action to [-1, 1] in place (a non-finite one becomes 0 and is counted), then write the task's
+        joint forces."""
+        env = wp.tid()
+        a = actions[env]
+        finite = True
+        for i in range(num_actions):
+            finite = finite and wp.isfinite(a[i])
+        if not finite:
+            a = Actions()
+            wp.atomic_add(nonfinite_action_count, 0, 1)
+        for i in range(num_actions):
+            a[i] = wp.clamp(a[i], -1.0, 1.0)
+        actions[env] = a
+        forces = fns.joint_forces(a, p)
+        base = env * dofs_per_env
+        for r in range(num_joints):
+            joint_f[base + role_dofs[r]] = forces[r]
+
+    @kernel
+    def random_actions(rng_state: wp.array(dtype=wp.uint32), actions: wp.array(dtype=Actions)):
+        """Uniform random actions in [-1, 1] (the physics-alone benchmark)."""
+        env = wp.tid()
+        s = rng_state[env]
+        a = Actions()
+        for i in range(num_actions):
+            a[i] = wp.randf(s, -1.0, 1.0)
+        rng_state[env] = s
+        actions[env] = a
+
+    @kernel
+    def finish_step(p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int), max_episode_length: int,
+                    actions: wp.array(dtype=Actions), rng_state: wp.array(dtype=wp.uint32),
+                    joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
+                    last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
+                    steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float),
+                    reward: wp.array(dtype=float), terminated: wp.array(dtype=wp.bool),
+                    truncated: wp.array(dtype=wp.bool), final_obs: wp.array(dtype=Obs),
+                    ended_return: wp.array(dtype=float), ended_length: wp.array(dtype=wp.int32),
+                    end_reason: wp.array(dtype=wp.int32), nonfinite_state_count: wp.array(dtype=wp.int32)):
+        """After the physics: observe, reward, end reason, time limit; keep the final observation; reset ended envs.
+
+        A non-finite physics state ends the episode with reward 0 and is counted; its final observation is the last
+        finite one, and its end reason that state's (a task failure when it was already beyond the task's limits,
+        else 'nonfinite_state'). ``episode_length`` counts toward the time limit (rsl-rl may start it at random
+        values); ``steps_run`` counts the steps the episode really ran, which ``ended_length`` reports."""
+        env = wp.tid()
+        base = env * dofs_per_env
+        q, qd = read_joints(joint_q, joint_qd, base, role_dofs)
+        length = episode_length[env] + 1
+        steps = steps_run[env] + 1
+        a = actions[env]
+        o = obs[env]
+        r = float(0.0)
+        reason = END_NONE
+        if all_finite(q, qd):
+            o = fns.observe(q, qd, p)
+            r, reason = fns.evaluate(q, qd, a, p)
+        else:
+            unused, reason = fns.evaluate(last_q[env], last_qd[env], a, p)
+            if reason == END_NONE:
+                reason = END_NONFINITE
+            wp.atomic_add(nonfinite_state_count, 0, 1)
+        if reason == END_NONE and length >= max_episode_length:
+            reason = END_TIME_LIMIT
+        ret = episode_return[env] + r
+        reward[env] = r
+        terminated[env] = reason != END_NONE and reason != END_TIME_LIMIT
+        truncated[env] = reason == END_TIME_LIMIT
+        final_obs[env] = o
+        end_reason[env] = reason
+        if reason == END_NONE:
+            obs[env] = o
+            last_q[env] = q
+            last_qd[env] = qd
+            episode_length[env] = length
+            steps_run[env] = steps
+            episode_return[env] = ret
+        else:
+            ended_return[env] = ret
+            ended_length[env] = steps
+            q0, qd0 = fns.sample_reset(rng_state, env, p)
+            begin_episode(env, q0, qd0, p, base, dofs_per_env, role_dofs, joint_q, joint_qd, last_q, last_qd, obs,
+                          episode_length, steps_run, episode_return)
+
+    @kernel
+    def reset_masked(mask: wp.array(dtype=wp.bool), p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int),
+                     rng_state: wp.array(dtype=wp.uint32), joint_q: wp.array(dtype=float),
+                     joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints), last_qd: wp.array(dtype=Joints),
+                     obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
+                     steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float)):
+        """Start a new episode from the task's random start in every env where ``mask`` is set."""
+        env = wp.tid()
+        if mask[env]:
+            q, qd = fns.sample_reset(rng_state, env, p)
+            begin_episode(env, q, qd, p, env * dofs_per_env, dofs_per_env, role_dofs, joint_q, joint_qd, last_q,
+                          last_qd, obs, episode_length, steps_run, episode_return)
+
+    @kernel
+    def set_states_masked(states: wp.array(dtype=State), mask: wp.array(dtype=wp.bool), p: Params,
+                          dofs_per_env: int, role_dofs: wp.array(dtype=int), joint_q: wp.array(dtype=float),
+                          joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
+                          last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs),
+                          episode_length: wp.array(dtype=wp.int32), steps_run: wp.array(dtype=wp.int32),
+                          episode_return: wp.array(dtype=float)):
+        """Start a new episode from ``states`` (per joint role: position, velocity) where ``mask`` is set."""
+        env = wp.tid()
+        if mask[env]:
+            s = states[env]
+            q, qd = Joints(), Joints()
+            for r in range(num_joints):
+                q[r] = s[2 * r]
+                qd[r] = s[2 * r + 1]
+            begin_episode(env, q, qd, p, env * dofs_per_env, dofs_per_env, role_dofs, joint_q, joint_qd, last_q,
+                          last_qd, obs, episode_length, steps_run, episode_return)
+
+    return SimpleNamespace(Joints=Joints, Actions=Actions, Obs=Obs, State=State, apply_actions=apply_actions,
+                           random_actions=random_actions, finish_step=finish_step, reset_masked=reset_masked, set_states_masked=set_states_masked)
+
+
+class BatchedEnv(abc.ABC):
+    """``num_envs`` copies of a task's robot stepped together on persistent Warp buffers (the machinery of every task).
+
+    A task subclass sets the class attributes below and keeps its spec (observation, action, reward, ends, reset) in
+    its docstring. Envs that end are reset within the same ``step``: the returned observation is the new episode's
+    first one, and ``info["final_obs"]`` holds the observation at which the episode ended. ``step`` returns fresh
+    tensors; ``obs_buf`` and friends are the zero-copy views the next step overwrites.
+
+    ``info`` keys (tensors on ``device``): ``final_obs`` (N, num_obs); ``episode_return`` (N,), ``episode_length``
+    (N,) and ``end_reason`` (N,) int32 (codes named by ``end_reasons``), valid where terminated | truncated;
+    ``nonfinite_actions`` and ``nonfinite_states`` (scalars, totals since construction): non-finite actions are
+    applied as 0, and a non-finite physics state ends its episode (reward 0) with the last finite observation.
 
     On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
     (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
     """
 
-    num_actions = 1
-    num_obs = 4
+    config_class: ClassVar[type[TaskConfig]]
+    """The task's settings (``env.task``)."""
+    params_type: ClassVar[type]
+    """``kernel_params(config_class)``: the struct the task's functions take."""
+    num_obs: ClassVar[int]
+    num_actions: ClassVar[int]
+    stage: ClassVar[str]
+    """The task's stage shipped in usd/ (``sim.stage_path`` names another)."""
+    joint_roles: ClassVar[tuple[str, ...]]
+    """The roles of the joints the task drives or reads, in the order of its ``Joints`` vectors."""
+    task_ends: ClassVar[tuple[str, ...]] = ()
+    """Names of the task's failure codes FIRST_TASK_END, FIRST_TASK_END + 1, ..."""
+    functions: ClassVar[TaskFunctions]
+
+    @abc.abstractmethod
+    def joints(self, task: TaskConfig) -> list[JointRole]:
+        """The stage's joint for each role of ``joint_roles`` (name and type), from the task's settings."""
 
     def __init__(self, cfg: EnvConfig):
         self.cfg = cfg.validate()
@@ -47,11 +291,16 @@ class CartpoleEnv:
         self.num_envs = cfg.num_envs
         self.max_episode_length = cfg.max_episode_length
         self.env_dt = cfg.sim.env_dt
+        self.end_reasons = COMMON_ENDS + self.task_ends
+        """Names of the ``end_reason`` codes, by code."""
+        self._kernels = build_kernels(type(self))
+        stage = Path(cfg.sim.stage_path) if cfg.sim.stage_path else data_path("usd", self.stage)
+        joints = self.joints(cfg.task)
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
-        self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim))
+        self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
                        for i, (start, stop) in enumerate(bounds)]
-        self.params = kernels.task_params(cfg.task)
-        self.layout = kernels.dof_layout(self.scene.dofs_per_env, self.scene.cart_dof, self.scene.pole_dof)
+        self.params = params_of(self.params_type, cfg.task)
+        self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
         self._order = TorchOrder(self.device)
         self._allocate()
         self._seed(cfg.seed)
@@ -64,15 +313,17 @@ class CartpoleEnv:
         return self.shards[0].scene
 
     def _allocate(self):
-        n, dev = self.num_envs, self.device
+        n, dev, k = self.num_envs, self.device, self._kernels
 
         def buf(dtype, shape=n):
             return wp.zeros(shape, dtype=dtype, device=dev)
 
         self._rng_state = buf(wp.uint32)
-        self._actions = buf(float)
-        self._obs = buf(wp.vec4)
-        self._final_obs = buf(wp.vec4)
+        self._actions = buf(k.Actions)
+        self._obs = buf(k.Obs)
+        self._final_obs = buf(k.Obs)
+        self._last_q = buf(k.Joints)
+        self._last_qd = buf(k.Joints)
         self._reward = buf(float)
         self._terminated = buf(wp.bool)
         self._truncated = buf(wp.bool)
@@ -84,7 +335,7 @@ class CartpoleEnv:
         self._end_reason = buf(wp.int32)
         self._nonfinite_actions = buf(wp.int32, len(self.shards))
         self._nonfinite_states = buf(wp.int32, len(self.shards))
-        self._states_in = buf(wp.vec4)
+        self._states_in = buf(k.State)
         self._mask_in = buf(wp.bool)
         self._all_envs = wp.full(n, True, dtype=wp.bool, device=dev)
 
@@ -118,34 +369,50 @@ class CartpoleEnv:
     def episode_length_buf(self, value: torch.Tensor):
         self._episode_length_t.copy_(value)
 
+    def _apply_actions(self, shard: Shard):
+        s = shard.scene
+        wp.launch(self._kernels.apply_actions, dim=shard.num_envs, inputs=[self.params, s.dofs_per_env, self._role_dofs],
+                  outputs=[shard.rows(self._actions), s.control.joint_f, shard.slot(self._nonfinite_actions)],
+                  device=self.device)
+
+    def physics_step(self, shard: Shard):
+        """Random actions in [-1, 1], the task's joint forces and ``decimation`` solver steps for one shard: an env step
+        without observations, rewards or resets (what ``tools.bench`` times as the physics alone)."""
+        wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(self._rng_state)],
+                  outputs=[shard.rows(self._actions)], device=self.device)
+        self._apply_actions(shard)
+        shard.scene.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
+
     def _step_kernels(self, shard: Shard):
-        s, rows = shard.scene, shard.rows
-        wp.launch(kernels.apply_actions, dim=shard.num_envs, inputs=[rows(self._actions), self.params, self.layout],
-                  outputs=[s.control.joint_f, shard.slot(self._nonfinite_actions)], device=self.device)
+        s, rows, k = shard.scene, shard.rows, self._kernels
+        self._apply_actions(shard)
         s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
         wp.launch(
-            kernels.finish_step, dim=shard.num_envs,
-            inputs=[self.params, self.layout, self.max_episode_length],
-            outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
-                     rows(self._episode_length), rows(self._steps_run), rows(self._episode_return),
-                     rows(self._reward), rows(self._terminated), rows(self._truncated), rows(self._final_obs),
-                     rows(self._ended_return), rows(self._ended_length), rows(self._end_reason),
+            k.finish_step, dim=shard.num_envs,
+            inputs=[self.params, s.dofs_per_env, self._role_dofs, self.max_episode_length, rows(self._actions)],
+            outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._last_q),
+                     rows(self._last_qd), rows(self._obs), rows(self._episode_length), rows(self._steps_run),
+                     rows(self._episode_return), rows(self._reward), rows(self._terminated), rows(self._truncated),
+                     rows(self._final_obs), rows(self._ended_return), rows(self._ended_length), rows(self._end_reason),
                      shard.slot(self._nonfinite_states)],
             device=self.device,
         )
 
+    def _episode_outputs(self, shard: Shard) -> list:
+        s, rows = shard.scene, shard.rows
+        return [s.state_0.joint_q, s.state_0.joint_qd, rows(self._last_q), rows(self._last_qd), rows(self._obs),
+                rows(self._episode_length), rows(self._steps_run), rows(self._episode_return)]
+
     def _seed(self, seed: int):
         for shard in self.shards:
-            wp.launch(kernels.init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
+            wp.launch(init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
                       outputs=[shard.rows(self._rng_state)], device=self.device)
 
     def _launch_reset(self, mask: wp.array):
         for shard in self.shards:
-            s, rows = shard.scene, shard.rows
-            wp.launch(kernels.reset_masked, dim=shard.num_envs, inputs=[rows(mask), self.params, self.layout],
-                      outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs),
-                               rows(self._episode_length), rows(self._steps_run), rows(self._episode_return)],
-                      device=self.device)
+            wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
+                      inputs=[shard.rows(mask), self.params, shard.scene.dofs_per_env, self._role_dofs],
+                      outputs=[shard.rows(self._rng_state), *self._episode_outputs(shard)], device=self.device)
 
     def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
         shape = " or ".join(str(tuple(s)) for s in shapes)
@@ -175,18 +442,20 @@ class CartpoleEnv:
 
     def step(self, actions: torch.Tensor):
         """Apply actions for one env step: (obs, reward, terminated, truncated, info), autoresetting ended envs."""
-        n = self.num_envs
-        actions = self._check("actions", actions, ((n, 1), (n,)), torch.float32)
-        self.actions_buf.copy_(actions.reshape(n))
+        n, a = self.num_envs, self.num_actions
+        shapes = ((n, a), (n,)) if a == 1 else ((n, a),)
+        actions = self._check("actions", actions, shapes, torch.float32)
+        self.actions_buf.copy_(actions.reshape(n, a))
         self._step()
         return (self.obs_buf.clone(), self.reward_buf.clone(), self.terminated_buf.clone(),
                 self.truncated_buf.clone(), self._outputs())
 
     def set_state(self, states: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Start new episodes from ``states`` (N, 4) [cart_pos, cart_vel, pole_angle, pole_vel] where ``mask``
-        (N,) bool is set (everywhere by default); returns the observations."""
+        """Start new episodes from ``states`` (N, 2 x joint roles): for each role in ``joint_roles`` order, its
+        position (m or rad) then its velocity (m/s or rad/s); where ``mask`` (N,) bool is set (everywhere by default).
+        Returns the observations."""
         n = self.num_envs
-        states = self._check("states", states, ((n, 4),), torch.float32)
+        states = self._check("states", states, ((n, 2 * len(self.joint_roles)),), torch.float32)
         if not torch.isfinite(states).all():
             raise ValueError("states: every value must be finite")
         mask = self._check("mask", mask, ((n,),), torch.bool) if mask is not None else None
@@ -197,11 +466,10 @@ class CartpoleEnv:
             self._mask_in_t.copy_(mask)
         with self._order:
             for shard in self.shards:
-                s, rows = shard.scene, shard.rows
-                wp.launch(kernels.set_states_masked, dim=shard.num_envs,
-                          inputs=[rows(self._states_in), rows(self._mask_in), self.layout],
-                          outputs=[s.state_0.joint_q, s.state_0.joint_qd, rows(self._obs), rows(self._episode_length),
-                                   rows(self._steps_run), rows(self._episode_return)], device=self.device)
+                wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
+                          inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params,
+                                  shard.scene.dofs_per_env, self._role_dofs],
+                          outputs=self._episode_outputs(shard), device=self.device)
         return self.obs_buf.clone()
 
     def close(self):
@@ -209,14 +477,5 @@ class CartpoleEnv:
         self._step.close()
 
     def get_observations(self) -> torch.Tensor:
-        """The current observations (N, 4), a fresh tensor."""
+        """The current observations (N, num_obs), a fresh tensor."""
         return self.obs_buf.clone()
-
-
-def make_env(num_envs: int | None = None, device: str | None = None, seed: int | None = None,
-             preset: str = "default", **sim_task_overrides) -> CartpoleEnv:
-    """Build a ``CartpoleEnv`` from a preset ('default', 'tutorial' or a YAML path) and overrides.
-
-    ``sim_task_overrides`` take nested dicts, e.g. ``sim={"solver": "mujoco"}``, ``task={"episode_length_s": 5}``.
-    """
-    return CartpoleEnv(env_config(preset, num_envs=num_envs, device=device, seed=seed, **sim_task_overrides))

@@ -1,26 +1,30 @@
-"""Watch a policy on the cartpole: statistics, a GIF and a USD recording (--headless) or Newton's viewer.
+"""Watch a policy on its task: statistics, a GIF and a USD recording (--headless) or Newton's viewer.
 
-    python play.py --headless                    # newest run's latest checkpoint -> <run>/play/
+    python play.py --headless                    # newest cartpole-balance run's latest checkpoint -> <run>/play/
+    python play.py --headless --task cartpole-swingup     # newest run of that task
     python play.py --headless --run DIR          # or --checkpoint FILE
     python play.py --agent zero --headless       # no checkpoint needed (also: random)
     python play.py                               # Newton's interactive viewer (needs a display and the viz extra)
 
-The env is rebuilt from the run's saved config.yaml (flags override it); the policy acts deterministically
-(the Gaussian's mean). Also installed as ``python -m cartpole_warp.play``.
+The task and its env are rebuilt from the run's saved config.yaml (flags override it); the policy acts
+deterministically (the Gaussian's mean). Also installed as ``python -m cartpole_warp.play``.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Generic, Literal
 
+from . import tasks
 from .cli import asks_help, clean_errors, parse, peek, quiet_libraries
-from .config import ConfigError, EnvConfig, require
-from .rl.config import TrainConfig, train_config
-from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_checkpoint, latest_run, load_config, write_text
+from .config import ConfigError, EnvConfig, TaskT, require
+from .files import write_text
+from .rl.config import TrainConfig, checked, train_config
+from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_checkpoint, latest_run, load_config
 from .scene import StageError
 
 DEFAULT_PLAY_ENVS = 256
@@ -29,8 +33,11 @@ Agent = Literal["trained", "zero", "random"]
 
 
 @dataclass
-class PlayArgs:
-    env: EnvConfig
+class PlayArgs(Generic[TaskT]):
+    env: EnvConfig[TaskT]
+    task: str = tasks.DEFAULT_TASK
+    """The task whose newest run plays (a run's own task when --run or --checkpoint names it), or which --agent
+    zero|random plays."""
     agent: Agent = "trained"
     """trained: a checkpoint's policy; zero: no push; random: uniform in [-1, 1]."""
     run: Path | None = None
@@ -39,7 +46,9 @@ class PlayArgs:
     """Checkpoint file (default: the run's latest)."""
     log_dir: str = "logs"
     """Root folder of all runs (train.py's --log-dir)."""
-    config: str = "default"
+    experiment_name: str | None = None
+    """The experiment whose newest run plays (train.py's --agent.experiment-name); None: the task's name."""
+    config: str | None = None
     """Preset of the env for --agent zero|random, or for a checkpoint outside a run folder."""
     headless: bool = False
     """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda
@@ -56,30 +65,35 @@ class PlayArgs:
 
 def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     """(arguments, the run's config with the env flags applied, checkpoint or None)."""
-    first = peek(argv, agent="trained", run=None, checkpoint=None, log_dir="logs", config=None)
+    first = peek(argv, task=None, agent="trained", run=None, checkpoint=None, log_dir="logs", experiment_name=None,
+                 config=None)
+    task = first.task or tasks.DEFAULT_TASK
     checkpoint = None
     if first.agent != "trained" or asks_help(argv):
-        cfg = train_config(first.config or "default")
+        cfg = train_config(task, first.config)
     else:
         if first.checkpoint:
             checkpoint = Path(first.checkpoint)
             if not checkpoint.is_file():
                 raise RunError(f"checkpoint {checkpoint} not found")
         else:
-            checkpoint = latest_checkpoint(Path(first.run) if first.run else latest_run(first.log_dir, "cartpole"))
+            run = Path(first.run) if first.run else latest_run(first.log_dir, first.experiment_name or task)
+            checkpoint = latest_checkpoint(run)
         saved = checkpoint.parent / CONFIG_FILE
         require(not (saved.is_file() and first.config), f"--config conflicts with the run's saved {saved}; "
                                                          "override its fields with flags instead")
-        cfg = load_config(checkpoint.parent) if saved.is_file() else train_config(first.config or "default")
+        cfg = load_config(checkpoint.parent) if saved.is_file() else train_config(task, first.config)
+        require(not first.task or first.task == cfg.task, f"--task {first.task}: the run was trained on {cfg.task}")
     cfg.env.num_envs = DEFAULT_PLAY_ENVS
-    args = parse(PlayArgs, PlayArgs(env=cfg.env, config=first.config or "default"), argv, __doc__)
+    cls = PlayArgs[type(cfg.env.task)]
+    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), argv, __doc__)
     require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
             f"--agent {args.agent} takes no --run, --checkpoint or --export")
     require(args.steps is None or args.steps >= 1, f"--steps must be >= 1, got {args.steps}")
     require(args.video_length is None or args.video_length >= 1,
             f"--video-length must be >= 1, got {args.video_length}")
     cfg.env = args.env
-    return args, cfg.validate(), checkpoint
+    return args, checked(cfg).validate(), checkpoint
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -103,12 +117,12 @@ def play(argv: list[str]) -> int:
             check_viewer()
         import torch
 
-        from .env import CartpoleEnv
-        from .rl.rollout import random_policy, rollout, zero_policy
+        from .evaluation import random_policy, rollout, zero_policy
 
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
-        env = CartpoleEnv(cfg.env)
+        task = tasks.get(cfg.task)
+        env = task.env_class(cfg.env)
         if checkpoint is not None:
             from .rl.runner import CartpoleRunner
             from .wrappers.rsl_rl import RslRlVecEnv
@@ -121,7 +135,8 @@ def play(argv: list[str]) -> int:
                 for path in runner.export(checkpoint.parent / EXPORT_DIR):
                     print(f"exported {path}")
         else:
-            policy = zero_policy if args.agent == "zero" else random_policy(cfg.env.seed)
+            policy = (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
+                      else random_policy(env.num_actions, cfg.env.seed))
             print(f"policy: {args.agent}")
         if not args.headless:
             from .viz.viewer import view_interactively
@@ -141,12 +156,18 @@ def play(argv: list[str]) -> int:
         pictures = recorder.close()
         limit = (f"the {cfg.env.task.episode_length_s:g} s time limit" if has_limit and steps >= env.max_episode_length
                  else f"the {steps}-step cap")
-        print(f"{stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
+        solved = task.solved(stats, min(steps, env.max_episode_length))
+        print(f"{cfg.task}: {stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
               f"mean return {stats.mean_return:.2f}, mean length {stats.mean_length:.1f} steps "
-              f"({stats.mean_length * env.env_dt:.2f} s), reached {limit}: {stats.time_limit_fraction:.1%}")
-        record = {"agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None, "num_envs": env.num_envs,
-                  "steps": steps, "episodes": stats.episodes, "mean_return": stats.mean_return,
-                  "mean_episode_length": stats.mean_length, "time_limit_fraction": stats.time_limit_fraction}
+              f"({stats.mean_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "
+              f"reached {limit}: {stats.time_limit_fraction:.1%}; {task.play_metric} "
+              f"{getattr(stats, task.play_metric):.3f}: {'solved' if solved else 'not solved'}")
+        record = {"task": cfg.task, "agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None,
+                  "num_envs": env.num_envs, "steps": steps, "episodes": stats.episodes,
+                  "mean_return": stats.mean_return, "mean_episode_length": stats.mean_length,
+                  "mean_reward_per_step": stats.mean_reward_per_step, "time_limit_fraction": stats.time_limit_fraction,
+                  "full_reward_per_step": stats.full_reward_per_step, "play_metric": task.play_metric,
+                  "play_value": getattr(stats, task.play_metric), "solved": solved}
         result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
         print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
         if not video_available():

@@ -1,8 +1,9 @@
-"""USD stage -> Newton model replicated ``num_envs`` times -> solver.
+"""USD stage -> Newton model replicated ``num_envs`` times -> solver (machinery: it knows joints, not robots).
 
 Build order (as in Newton's examples): ModelBuilder -> add_usd -> replicate -> finalize -> solver ->
-state_0 / state_1 / control. The cart and pole DOFs are found by joint name (``sim.cart_joint``,
-``sim.pole_joint``); everything physical (masses, lengths, inertias, limits, gravity) comes from the stage.
+state_0 / state_1 / control. The task names the joints it drives or reads (``JointRole``: a role, the joint's name
+in the stage, its type); they are found by name, and every other joint must be fixed. Everything physical (masses,
+lengths, inertias, limits, gravity) comes from the stage.
 """
 
 from __future__ import annotations
@@ -15,21 +16,29 @@ import newton
 from .config import BYTES_PER_ENV, ConfigError, SimConfig
 from .runtime import init_warp
 
-CART_JOINT = "cartJoint"
-POLE_JOINT = "poleJoint"
-"""The tutorial's joint names (``sim.cart_joint`` / ``sim.pole_joint`` name another stage's)."""
 SHARDABLE_SOLVERS = ("featherstone",)
 """Solvers whose CPU scenes can step in parallel threads; mujoco-warp's tile kernels share one CPU arena, so
 concurrent replays of MuJoCo scenes abort."""
 
 
 class StageError(ConfigError):
-    """The USD stage is missing, unreadable or lacks the cartpole joints."""
+    """The USD stage is missing, unreadable or lacks the task's joints."""
+
+
+@dataclass(frozen=True)
+class JointRole:
+    """A joint the task drives or reads: ``role`` (e.g. 'cart'), the joint's ``name`` in the stage (or its full prim
+    path where the name repeats), its ``kind`` and the config ``key`` that sets the name (for error messages)."""
+
+    role: str
+    name: str
+    kind: newton.JointType
+    key: str
 
 
 @dataclass
 class Scene:
-    """A finalized Newton model of ``num_envs`` cartpoles (one world each) and the solver that steps it."""
+    """A finalized Newton model of ``num_envs`` robots (one world each) and the solver that steps it."""
 
     model: newton.Model
     solver: newton.solvers.SolverBase
@@ -38,11 +47,10 @@ class Scene:
     control: newton.Control
     num_envs: int
     dofs_per_env: int
-    """Joint coordinates (= DOFs, all joints being 1-DOF) of one cartpole."""
-    cart_dof: int
-    """Index of the cart DOF inside one env's block of joint_q / joint_qd / joint_f."""
-    pole_dof: int
-    """Index of the pole DOF inside one env's block."""
+    """Joint coordinates (= DOFs, all movable joints being 1-DOF) of one robot."""
+    role_dofs: list[int]
+    """For each joint role, in the task's order, the index of its DOF inside one env's block of joint_q / joint_qd /
+    joint_f."""
 
     def simulate(self, physics_dt: float, steps: int):
         """Advance every env ``steps`` physics steps; the result ends in ``state_0`` (graph-capturable)."""
@@ -69,23 +77,23 @@ def check_units(path: Path):
                          "cartpole_warp simulates stages in metres and kilograms (both 1): rescale the stage")
 
 
-def pick_joint(labels: list[str], name: str, role: str) -> int:
-    """Index of the joint whose prim path is ``name`` or ends in ``/name``; StageError naming the candidates when
-    none or several match."""
+def pick_joint(labels: list[str], joint: JointRole) -> int:
+    """Index of the joint whose prim path is ``joint.name`` or ends in ``/name``; StageError naming the candidates
+    when none or several match."""
+    name = joint.name
     found = [i for i, label in enumerate(labels) if label == name or label.endswith("/" + name)]
     if len(found) == 1:
         return found[0]
     if not found:
-        raise StageError(f"no joint named {name!r} for the {role} (set sim.{role.replace(' ', '_')}); "
-                         f"the stage's movable joints: {', '.join(labels) or 'none'}")
-    raise StageError(f"{len(found)} joints match {name!r} for the {role}: {', '.join(labels[i] for i in found)}; "
-                     f"give sim.{role.replace(' ', '_')} the full prim path")
+        raise StageError(f"no joint named {name!r} for the {joint.role} joint (set {joint.key}); "
+                         f"the stage's joints: {', '.join(labels) or 'none'}")
+    raise StageError(f"{len(found)} joints match {name!r} for the {joint.role} joint: "
+                     f"{', '.join(labels[i] for i in found)}; give {joint.key} the full prim path")
 
 
-def load_cartpole(stage_path: Path, cart_joint: str = CART_JOINT, pole_joint: str = POLE_JOINT
-                  ) -> tuple[newton.ModelBuilder, int, int]:
-    """One cartpole from the stage: (builder, cart_dof, pole_dof). The cart joint must be prismatic, the pole joint
-    revolute, every other joint fixed."""
+def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelBuilder, list[int]]:
+    """One robot from the stage: (builder, the DOF of each joint role). Each role's joint must be of its kind, every
+    other joint fixed."""
     path = Path(stage_path)
     if not path.is_file():
         raise StageError(f"USD stage not found: {path}")
@@ -98,22 +106,21 @@ def load_cartpole(stage_path: Path, cart_joint: str = CART_JOINT, pole_joint: st
         raise StageError(f"cannot load USD stage {path}: {type(err).__name__}: {err}") from err
     labels = list(builder.joint_label)
     kinds = [newton.JointType(kind) for kind in builder.joint_type]
-    cart = pick_joint(labels, cart_joint, "cart joint")
-    pole = pick_joint(labels, pole_joint, "pole joint")
-    for index, role, wanted in ((cart, "cart joint", newton.JointType.PRISMATIC),
-                                (pole, "pole joint", newton.JointType.REVOLUTE)):
-        if kinds[index] != wanted:
-            raise StageError(f"the {role} {labels[index]} of {path} is {kinds[index].name.lower()}; it must be "
-                             f"{wanted.name.lower()}")
+    found = [pick_joint(labels, joint) for joint in joints]
+    for index, joint in zip(found, joints, strict=True):
+        if kinds[index] != joint.kind:
+            raise StageError(f"the {joint.role} joint {labels[index]} of {path} is {kinds[index].name.lower()}; it "
+                             f"must be {joint.kind.name.lower()}")
     others = [f"{label} ({kind.name.lower()})" for i, (label, kind) in enumerate(zip(labels, kinds, strict=True))
-              if i not in (cart, pole) and kind != newton.JointType.FIXED]
+              if i not in found and kind != newton.JointType.FIXED]
     if others:
-        raise StageError(f"stage {path}: only the cart and pole joints may move, but it also has {', '.join(others)}")
-    return builder, builder.joint_qd_start[cart], builder.joint_qd_start[pole]
+        roles = " and ".join(joint.role for joint in joints)
+        raise StageError(f"stage {path}: only the {roles} joints may move, but it also has {', '.join(others)}")
+    return builder, [builder.joint_qd_start[index] for index in found]
 
 
 def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBase:
-    """The configured solver, set up for a frictionless, undamped cartpole without contacts."""
+    """The configured solver, set up for frictionless, undamped joints without contacts."""
     if sim.solver == "featherstone":
         return newton.solvers.SolverFeatherstone(
             model, angular_damping=0.0, update_mass_matrix_interval=sim.mass_matrix_interval
@@ -121,13 +128,13 @@ def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBas
     return newton.solvers.SolverMuJoCo(model, disable_contacts=True)
 
 
-def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
+def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints: list[JointRole]) -> Scene:
     """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
     init_warp()
-    cartpole, cart_dof, pole_dof = load_cartpole(sim.stage, sim.cart_joint, sim.pole_joint)
+    robot, role_dofs = load_robot(stage, joints)
     builder = newton.ModelBuilder()
     try:
-        builder.replicate(cartpole, copy_count=num_envs)
+        builder.replicate(robot, copy_count=num_envs)
         model = builder.finalize(device=device)
     except MemoryError:
         raise ConfigError(f"not enough memory for {num_envs:,} envs (about {num_envs * BYTES_PER_ENV / 1e9:,.1f} GB "
@@ -139,7 +146,6 @@ def build_scene(num_envs: int, device: str, sim: SimConfig) -> Scene:
         state_1=model.state(),
         control=model.control(),
         num_envs=num_envs,
-        dofs_per_env=cartpole.joint_dof_count,
-        cart_dof=cart_dof,
-        pole_dof=pole_dof,
+        dofs_per_env=robot.joint_dof_count,
+        role_dofs=role_dofs,
     )

@@ -1,6 +1,7 @@
-"""Train the cartpole with rsl-rl PPO on the batched Warp/Newton env.
+"""Train a task with rsl-rl PPO on the batched Warp/Newton env.
 
-    python train.py --num-envs 4096 --device cpu          # a new run under logs/rsl_rl/cartpole/
+    python train.py --num-envs 4096 --device cpu          # cartpole-balance: a new run under logs/rsl_rl/cartpole-balance/
+    python train.py --task cartpole-swingup               # another registered task (listed below)
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point
     python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help lists them all
@@ -16,25 +17,25 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Generic
 
 import tyro
 
+from . import tasks
 from .cli import asks_help, clean_errors, parse, peek, quiet_libraries, with_default_value
-from .config import ConfigError
-from .rl.config import TrainConfig, train_config
+from .config import ConfigError, TaskT, require
+from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
-from .rl.metrics import SOLVED_LENGTH_FRACTION, SOLVED_REWARD_PER_STEP
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
 from .scene import StageError
 
 
 @dataclass
-class TrainArgs:
-    cfg: Annotated[TrainConfig, tyro.conf.arg(name="")]
-    config: str = "default"
-    """Preset to start from: a name under configs/ (default, tutorial) or a YAML file of overrides.
-    Precedence: dataclass defaults < preset (or a resumed run's config.yaml) < flags."""
+class TrainArgs(Generic[TaskT]):
+    cfg: Annotated[TrainConfig[TaskT], tyro.conf.arg(name="")]
+    config: str | None = None
+    """Preset to start from: a name under configs/ (default, tutorial, isaac_lab) or a YAML file of overrides.
+    Precedence: dataclass defaults < the task's defaults < preset (or a resumed run's config.yaml) < flags."""
     resume: str | None = None
     """Continue a run in place from its last checkpoint: a run folder, or 'latest' (a bare --resume) for the newest
     run under --log-dir. The run's config.yaml is the starting point; flags still override it."""
@@ -42,10 +43,16 @@ class TrainArgs:
     """Continue from this checkpoint file, in its run folder (implies --resume)."""
 
 
+def task_list() -> str:
+    """The registered tasks, one line each, for --help."""
+    return "tasks (--task):\n" + "\n".join(f"    {name:<18} {tasks.get(name).summary}" for name in tasks.names())
+
+
 def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
     """(config, run folder, checkpoint to resume from or None) from the command line."""
     argv = with_default_value(argv, "--resume", "latest")
-    first = peek(argv, config=None, resume=None, checkpoint=None, log_dir="logs")
+    first = peek(argv, task=None, config=None, resume=None, checkpoint=None, log_dir="logs",
+                 **{"agent.experiment_name": None})
     checkpoint = run_dir = None
     if (first.resume or first.checkpoint) and not asks_help(argv):
         if first.config:
@@ -55,15 +62,23 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
             if not checkpoint.is_file():
                 raise RunError(f"checkpoint {checkpoint} not found")
             run_dir = checkpoint.parent
+        elif first.resume == "latest":
+            experiment = getattr(first, "agent.experiment_name") or tasks.get(first.task or tasks.DEFAULT_TASK).name
+            run_dir = latest_run(first.log_dir, experiment)
         else:
-            run_dir = latest_run(first.log_dir, "cartpole") if first.resume == "latest" else Path(first.resume)
+            run_dir = Path(first.resume)
+        if run_dir is not None and checkpoint is None:
             checkpoint = latest_checkpoint(run_dir)
         base = load_config(run_dir)
+        if first.task and first.task != base.task:
+            raise ConfigError(f"--task {first.task} cannot change the task of {run_dir} ({base.task})")
     else:
-        base = train_config(first.config or "default")
-    args = parse(TrainArgs, TrainArgs(cfg=base, config=first.config or "default"), argv, __doc__)
-    cfg = args.cfg.validate()
-    return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.agent.experiment_name, cfg.agent.run_name), checkpoint
+        base = train_config(first.task or tasks.DEFAULT_TASK, first.config)
+    cls = TrainArgs[type(base.env.task)]
+    args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}")
+    require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
+    cfg = checked(args.cfg).validate()
+    return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,9 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)
         try:
             training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks)
-            say(f"ready in {training.setup_time_s:.1f} s; solved = mean episode length >= "
-                f"{SOLVED_LENGTH_FRACTION:.0%} of {training.max_episode_length} steps and reward/step >= "
-                f"{SOLVED_REWARD_PER_STEP}", flush=True)
+            say(f"ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
+                f"{training.task.solved.describe(training.max_episode_length)}", flush=True)
             summary = training.run()
         finally:
             if torch.distributed.is_initialized():

@@ -10,10 +10,11 @@ import torch
 import torch.distributed
 import torch.multiprocessing
 
-from cartpole_warp.config import ConfigError, EnvConfig
-from cartpole_warp.rl.config import TrainConfig
-from cartpole_warp.rl.distributed import Ranks, all_reduce_sum, joint_stop
-from cartpole_warp.rl.metrics import EpisodeStats
+from cartpole_warp import tasks
+from cartpole_warp.config import ConfigError
+from cartpole_warp.evaluation import EpisodeStats
+from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.distributed import Ranks, joint_stop
 from cartpole_warp.rl.training import Training
 
 
@@ -25,14 +26,17 @@ def test_ranks_come_from_torchrun_variables():
         Ranks.from_environment({"WORLD_SIZE": "two"})
 
 
-def test_each_process_takes_its_gpu_and_seed_plus_rank():
-    env = EnvConfig(num_envs=4096, device="cuda", seed=7)
+@pytest.mark.parametrize("task", tasks.names())
+def test_each_process_takes_its_gpu_and_seed_plus_rank_and_keeps_every_other_setting(task):
+    env = tasks.env_config(task, num_envs=4096, device="cuda", seed=7, sim={"solver": "mujoco", "cpu_threads": 1},
+                           task={"episode_length_s": 3.0})
     mine = Ranks(4, 3, 1).env_config(env, cuda_devices=2)
     assert (mine.device, mine.seed, mine.num_envs) == ("cuda:1", 10, 4096)
+    assert (mine.sim, mine.task) == (env.sim, env.task) and type(mine.task) is type(env.task)
     assert Ranks(2, 0, 0).env_config(env, cuda_devices=2).seed == 7
     assert Ranks().env_config(env, cuda_devices=0) is env, "one process keeps its config"
     with pytest.raises(ConfigError, match="needs --device cuda"):
-        Ranks(2, 0, 0).env_config(EnvConfig(device="cpu"), cuda_devices=2)
+        Ranks(2, 0, 0).env_config(tasks.env_config(task, device="cpu"), cuda_devices=2)
     with pytest.raises(ConfigError, match="host has 2 CUDA device"):
         Ranks(4, 2, 2).env_config(env, cuda_devices=2)
 
@@ -44,27 +48,26 @@ def test_a_process_alone_stops_as_it_wishes(wanted):
 
 def _two_processes(rank, store, results):
     torch.distributed.init_process_group("gloo", init_method=f"file://{store}", rank=rank, world_size=2)
-    stats = EpisodeStats()
+    stats = EpisodeStats("cpu", max_episode_length=30)
     ended = torch.tensor([True, rank == 1])
     stats.add(ended, torch.tensor([10.0 * (rank + 1), 30.0]), torch.tensor([10, 30]), torch.tensor([False, True]))
     summary = stats.pop(all_processes=True)
     interrupted = joint_stop("interrupted" if rank == 1 else None, "cpu", True)
     solved = joint_stop("solved" if rank == 0 else None, "cpu", True)
     strongest = joint_stop("solved" if rank == 0 else "interrupted", "cpu", True)
-    total = all_reduce_sum(torch.tensor([float(rank + 1)]), True)
-    results[rank] = (summary.episodes, summary.mean_return, (interrupted, solved, strongest), total.item())
+    results[rank] = (summary.episodes, summary.mean_return, (interrupted, solved, strongest), summary.full_episodes)
     torch.distributed.destroy_process_group()
 
 
 def test_statistics_and_stop_are_reduced_over_processes(tmp_path):
     results = torch.multiprocessing.Manager().dict()
     torch.multiprocessing.spawn(_two_processes, args=(str(tmp_path / "store"), results), nprocs=2)
-    # rank 0 ended one episode (return 10), rank 1 two (returns 20 and 30): 3 episodes, mean 20, on both ranks
-    assert results[0] == results[1] == (3, 20.0, ("interrupted", "solved", "interrupted"), 3.0)
+    # rank 0 ended one episode (return 10), rank 1 two (returns 20 and 30, the second full): 3 episodes, mean 20
+    assert results[0] == results[1] == (3, 20.0, ("interrupted", "solved", "interrupted"), 1)
 
 
 def test_only_rank_zero_writes_the_run(tmp_path):
-    cfg = TrainConfig()
+    cfg = train_config()
     cfg.env.num_envs, cfg.agent.max_iterations = 64, 1
     run_dir = tmp_path / "run"
     summary = Training(cfg, run_dir, ranks=Ranks(world_size=1, rank=1)).run()

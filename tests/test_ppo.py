@@ -6,13 +6,13 @@ import pytest
 import torch
 
 import cartpole_warp
-from cartpole_warp.rl.config import TrainConfig
+from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
 def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mixed_precision=False):
-    cfg = TrainConfig()
+    cfg = train_config()
     cfg.agent.torch_compile_mode, cfg.agent.algorithm.use_mixed_precision = torch_compile_mode, use_mixed_precision
     cfg.env.num_envs = 64
     cfg.agent.algorithm.class_name = class_name

@@ -20,6 +20,8 @@ import yaml
 from onnx.reference import ReferenceEvaluator
 from PIL import Image
 
+from cartpole_warp import tasks
+
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["--num-envs", "64", "--logger", "tensorboard", "--agent.save-interval", "1"]
 
@@ -30,19 +32,25 @@ def run_script(script, *args, env=None, timeout=300):
     return result
 
 
-def only_run(log_dir):
-    runs = [p for p in (Path(log_dir) / "rsl_rl" / "cartpole").iterdir() if p.is_dir()]
+def only_run(log_dir, experiment=tasks.DEFAULT_TASK):
+    runs = [p for p in (Path(log_dir) / "rsl_rl" / experiment).iterdir() if p.is_dir()]
     assert len(runs) == 1, runs
     return runs[0]
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A 2-iteration run of train.py with 64 envs."""
+@pytest.fixture(scope="module", params=tasks.names())
+def trained(request, tmp_path_factory):
+    """A 2-iteration run of train.py with 64 envs, for every task."""
     log_dir = tmp_path_factory.mktemp("logs")
-    result = run_script("train.py", *SMALL, "--max-iterations", "2", "--run-name", "ci", "--log-dir", log_dir)
+    task = request.param
+    result = run_script("train.py", "--task", task, *SMALL, "--max-iterations", "2", "--run-name", "ci", "--log-dir",
+                        log_dir)
     assert result.returncode == 0, result.stdout + result.stderr
-    return log_dir, only_run(log_dir), result.stdout
+    return log_dir, only_run(log_dir, task), result.stdout
+
+
+def num_obs(run) -> int:
+    return tasks.get(yaml.safe_load((run / "config.yaml").read_text())["task"]).env_class.num_obs
 
 
 def test_train_writes_every_artefact(trained):
@@ -51,6 +59,7 @@ def test_train_writes_every_artefact(trained):
     assert re.search(r"it 2/2 \| .* steps/s \| ETA", stdout), stdout
     saved = yaml.safe_load((run / "config.yaml").read_text())
     assert saved["env"]["num_envs"] == 64 and saved["agent"]["max_iterations"] == 2
+    assert run.parent.name == saved["task"], "runs go to logs/rsl_rl/<experiment>, the task's name by default"
     assert list(run.glob("events.out.tfevents.*"))
     for name in ("model_0.pt", "model_1.pt"):
         checkpoint = torch.load(run / name, weights_only=False)
@@ -63,6 +72,8 @@ def test_train_writes_every_artefact(trained):
     assert summary["env_steps"] == 2 * 64 * saved["agent"]["num_steps_per_env"]
     assert summary["env_steps_per_s"] > 0 and summary["device"] == "cpu" and summary["versions"]["rsl-rl-lib"]
     assert isinstance(summary["solved"], bool) and summary["checkpoint"] == "model_1.pt"
+    assert summary["task"] == saved["task"] and summary["solved_definition"] == tasks.get(saved["task"]).solved.describe(
+        summary["max_episode_length"])
     assert summary["final"]["mean_episode_length"] > 0
 
     image = Image.open(run / "learning_curve.png")
@@ -71,7 +82,7 @@ def test_train_writes_every_artefact(trained):
 
     onnx_path, jit_path = run / "exported" / "policy.onnx", run / "exported" / "policy.pt"
     onnx.checker.check_model(str(onnx_path))
-    obs = np.array([[0.1, -0.2, 0.05, 0.3], [0.0, 0.0, 0.0, 0.0]], dtype=np.float32)
+    obs = np.random.default_rng(0).normal(size=(2, num_obs(run))).astype(np.float32)
     (actions,) = ReferenceEvaluator(str(onnx_path)).run(None, {"obs": obs})
     scripted = torch.jit.load(str(jit_path))
     np.testing.assert_allclose(actions, scripted(torch.from_numpy(obs)).detach().numpy(), rtol=1e-4, atol=1e-5)
@@ -82,17 +93,16 @@ def test_train_writes_every_artefact(trained):
 def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_checkpoint(trained, batch):
     import onnxruntime
 
-    from cartpole_warp import make_env
     from cartpole_warp.rl.runner import CartpoleRunner
     from cartpole_warp.rl.runs import load_config
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
     _, run, _ = trained
-    obs = np.random.default_rng(batch).normal(size=(batch, 4)).astype(np.float32)
+    obs = np.random.default_rng(batch).normal(size=(batch, num_obs(run))).astype(np.float32)
     (onnx_actions,) = onnxruntime.InferenceSession(str(run / "exported" / "policy.onnx")).run(None, {"obs": obs})
     scripted = torch.jit.load(str(run / "exported" / "policy.pt"))(torch.from_numpy(obs)).detach().numpy()
     cfg = load_config(run)
-    runner = CartpoleRunner(RslRlVecEnv(make_env(num_envs=cfg.env.num_envs)), cfg, None)
+    runner = CartpoleRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
     runner.load(str(run / "model_1.pt"), load_cfg={"actor": True})
     with torch.inference_mode():
         checkpoint = runner.policy()(torch.from_numpy(obs)).numpy()
@@ -103,11 +113,13 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
 
 def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     log_dir, run, _ = trained
-    result = run_script("play.py", "--headless", "--log-dir", log_dir, "--num-envs", "8", "--steps", "40")
+    task = yaml.safe_load((run / "config.yaml").read_text())["task"]
+    result = run_script("play.py", "--headless", "--log-dir", log_dir, "--task", task, "--num-envs", "8", "--steps",
+                        "40")
     assert "cartpole.mp4" in result.stdout
     assert result.returncode == 0, result.stdout + result.stderr
-    assert re.search(r"8 episodes .* mean return -?\d+\.\d+, mean length \d+\.\d steps .* reached .*: \d+\.\d%",
-                     result.stdout), result.stdout
+    assert re.search(rf"{task}: 8 episodes .* mean return -?\d+\.\d+, mean length \d+\.\d steps .* reached .*: "
+                     rf"\d+\.\d%; {tasks.get(task).play_metric} -?\d\.\d+: (not )?solved", result.stdout), result.stdout
     assert "model_1.pt" in result.stdout
 
     gif = Image.open(run / "play" / "cartpole.gif")
@@ -126,7 +138,8 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     assert stage.GetEndTimeCode() == 40 and stage.GetTimeCodesPerSecond() == 60
     assert UsdGeom.GetStageUpAxis(stage) == "Z"
     moving = {"orient": 0, "translate": 0}
-    bodies = [UsdGeom.Xformable(p) for p in stage.Traverse() if p.GetChildren() and p.GetChildren()[0].IsA(UsdGeom.Cube)
+    bodies = [UsdGeom.Xformable(p) for p in stage.Traverse() if p.GetChildren()
+              and (p.GetChildren()[0].IsA(UsdGeom.Cube) or p.GetChildren()[0].IsA(UsdGeom.Capsule))
               and UsdGeom.Xformable(p).GetOrderedXformOps()]
     for body in bodies:
         for op in body.GetOrderedXformOps():
@@ -138,6 +151,8 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     assert moving["orient"] >= 1 and moving["translate"] >= 1, "the pole turns and the cart moves"
     result_json = json.loads((run / "play" / "result.json").read_text())
     assert result_json["episodes"] == 8 and 0.0 <= result_json["time_limit_fraction"] <= 1.0
+    assert result_json["task"] == task and result_json["play_metric"] == tasks.get(task).play_metric
+    assert result_json["play_value"] == result_json[tasks.get(task).play_metric]
 
 
 def test_play_export_writes_onnx_and_torchscript(trained, tmp_path):
@@ -147,7 +162,7 @@ def test_play_export_writes_onnx_and_torchscript(trained, tmp_path):
     result = run_script("play.py", "--run", copy, "--export", "--headless", "--num-envs", "2", "--steps", "2")
     assert result.returncode == 0, result.stderr
     onnx.checker.check_model(str(copy / "exported" / "policy.onnx"))
-    assert torch.jit.load(str(copy / "exported" / "policy.pt"))(torch.zeros(1, 4)).shape == (1, 1)
+    assert torch.jit.load(str(copy / "exported" / "policy.pt"))(torch.zeros(1, num_obs(run))).shape == (1, 1)
 
 
 def test_play_without_runs_says_what_to_do(tmp_path):
@@ -193,9 +208,10 @@ def test_help_documents_flags_and_config_fields():
     for script in ("train.py", "play.py"):
         result = run_script(script, "--help")
         assert result.returncode == 0
-        for flag in ("--num-envs", "--device", "--seed", "--env.task.episode-length-s", "--log-dir", "--checkpoint"):
+        for flag in ("--num-envs", "--device", "--seed", "--env.task.episode-length-s", "--log-dir", "--checkpoint",
+                     "--task"):
             assert flag in result.stdout, (script, flag)
-    assert "--agent.algorithm.entropy-coef" in result.stdout or script == "play.py"
+        assert ("--agent.algorithm.entropy-coef" in result.stdout) == (script == "train.py"), script
 
 
 @pytest.mark.parametrize("args, message", [
@@ -212,6 +228,9 @@ def test_help_documents_flags_and_config_fields():
     (["--env.task.reset-dist-m", "-1"], "error: invalid config: task.reset_dist_m: Input should be greater than 0"),
     (["--env.task.episode-length-s", "inf"], "task.episode_length_s: Input should be a finite number"),
     (["--agent.algorithm.gamma", "2"], "agent.algorithm.gamma: Input should be less than or equal to 1"),
+    (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
+                                      "cartpole-swingup"),
+    (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, args, message):
     result = run_script("train.py", "--log-dir", tmp_path, *args)
@@ -289,9 +308,9 @@ def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
     stage = newton.examples.get_asset("cartpole_single_pendulum.usda")
     result = run_script("train.py", "--num-envs", "512", "--env.task.episode-length-s", "5", "--max-iterations", "200",
                         "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path,
-                        "--env.sim.stage-path", stage, "--env.sim.cart-joint", "slider_to_cart",
-                        "--env.sim.pole-joint", "cart_to_pole", timeout=600)
+                        "--env.sim.stage-path", stage, "--env.task.cart-joint", "slider_to_cart",
+                        "--env.task.pole-joint", "cart_to_pole", timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
     run = only_run(tmp_path)
     assert json.loads((run / "summary.json").read_text())["solved"]
-    assert yaml.safe_load((run / "config.yaml").read_text())["env"]["sim"]["cart_joint"] == "slider_to_cart"
+    assert yaml.safe_load((run / "config.yaml").read_text())["env"]["task"]["cart_joint"] == "slider_to_cart"

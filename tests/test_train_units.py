@@ -17,14 +17,15 @@ from PIL import Image
 from tensordict import TensorDict
 
 import cartpole_warp
+from cartpole_warp import tasks
 from cartpole_warp.config import ConfigError
+from cartpole_warp.evaluation import EpisodeStats, EpisodeSummary
+from cartpole_warp.files import atomic_write
 from cartpole_warp.rl.config import RunnerConfig, TrainConfig, train_config
 from cartpole_warp.rl.curve import plot_learning_curve
-from cartpole_warp.rl.metrics import EpisodeStats, is_solved
 from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.rl.runs import (
     RunError,
-    atomic_write,
     latest_checkpoint,
     latest_run,
     load_config,
@@ -38,16 +39,16 @@ from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 def test_preset_then_flags_override_the_dataclass_defaults(tmp_path):
     preset = tmp_path / "p.yaml"
     preset.write_text("env:\n  num_envs: 64\nagent:\n  max_iterations: 7\n  algorithm:\n    entropy_coef: 0.02\n")
-    cfg = train_config(str(preset))
+    cfg = train_config(preset=str(preset))
     assert (cfg.env.num_envs, cfg.agent.algorithm.entropy_coef, cfg.agent.max_iterations) == (64, 0.02, 7)
     cfg, run_dir, checkpoint = resolve(["--config", str(preset), "--agent.algorithm.entropy-coef", "0.03",
                                         "--agent.actor.hidden-dims", "16", "8", "--env.task.episode-length-s", "None",
                                         "--log-dir", str(tmp_path), "--run-name", "x"])
     assert cfg.agent.algorithm.entropy_coef == 0.03 and cfg.agent.actor.hidden_dims == [16, 8]
     assert cfg.env.task.episode_length_s is None and cfg.env.num_envs == 64 and cfg.agent.max_iterations == 7
-    assert run_dir.parent == tmp_path / "rsl_rl" / "cartpole" and run_dir.name.endswith("_x") and not run_dir.exists()
-    assert checkpoint is None
-    assert TrainConfig().agent.algorithm.entropy_coef == 0.005
+    assert run_dir.parent == tmp_path / "rsl_rl" / "cartpole-balance" and run_dir.name.endswith("_x")
+    assert checkpoint is None and not run_dir.exists()
+    assert train_config().agent.algorithm.entropy_coef == 0.005
 
 
 @pytest.mark.parametrize("yaml_text, message", [
@@ -63,11 +64,11 @@ def test_bad_presets_name_the_key(tmp_path, yaml_text, message):
     preset = tmp_path / "bad.yaml"
     preset.write_text(yaml_text)
     with pytest.raises(ConfigError, match=message):
-        train_config(str(preset))
+        train_config(preset=str(preset))
 
 
 def test_validate_rejects_mini_batches_that_do_not_divide_the_rollout():
-    cfg = TrainConfig()
+    cfg = train_config()
     cfg.env.num_envs, cfg.agent.num_steps_per_env, cfg.agent.algorithm.num_mini_batches = 3, 3, 4
     with pytest.raises(ConfigError, match="num_mini_batches"):
         cfg.validate()
@@ -85,32 +86,36 @@ def field_docs(cls) -> dict[str, str]:
     return docs
 
 
-def leaf_fields(cls, prefix=""):
-    """(flag, docstring) of every non-dataclass field of a config tree."""
-    hints, docs = typing.get_type_hints(cls), field_docs(cls)
-    for f in dataclasses.fields(cls):
-        kind = hints[f.name]
-        if dataclasses.is_dataclass(kind):
-            yield from leaf_fields(kind, f"{prefix}{f.name}.")
+def leaf_fields(cfg, prefix=""):
+    """(flag, docstring) of every non-dataclass field of a config tree (read from the instance: generic fields hold
+    the task's settings)."""
+    docs = field_docs(type(cfg))
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from leaf_fields(value, f"{prefix}{f.name}.")
         else:
             yield f"--{prefix}{f.name}".replace("_", "-"), docs.get(f.name)
 
 
-def test_help_lists_every_config_field_with_its_docstring():
+@pytest.mark.parametrize("task", tasks.names())
+def test_help_lists_every_config_field_with_its_docstring_and_the_tasks(task):
     help_text = io.StringIO()
     with contextlib.redirect_stdout(help_text), pytest.raises(SystemExit) as exit_code:
-        resolve(["--help"])
+        resolve(["--task", task, "--help"])
     assert exit_code.value.code == 0
     text = " ".join(help_text.getvalue().replace("│", " ").split())
-    fields = list(leaf_fields(TrainConfig))
+    fields = list(leaf_fields(train_config(task)))
     assert len(fields) > 40
     for flag, doc in fields:
         assert doc, f"{flag} has no docstring"
         assert flag in text, flag
         assert " ".join(doc.split()[:4]) in text, f"{flag}: its docstring is not in --help"
     for flag in ("--num-envs", "--device", "--seed", "--max-iterations", "--run-name", "--log-dir", "--config",
-                 "--resume", "--checkpoint", "--logger", "--stop-when-solved"):
+                 "--resume", "--checkpoint", "--logger", "--stop-when-solved", "--task"):
         assert flag in text, flag
+    for name in tasks.names():
+        assert f"{name} {tasks.get(name).summary}" in text, f"--help lists the task {name}"
 
 
 def test_runner_config_is_rsl_rl_train_cfg():
@@ -123,7 +128,7 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert cfg["num_steps_per_env"] == 8 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
     assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
     assert RunnerConfig(logger="none").to_rsl_rl()["logger"]["class_name"].endswith(":NullLogWriter")
-    isaac_lab = train_config("isaac_lab").agent
+    isaac_lab = train_config(preset="isaac_lab").agent
     assert isaac_lab.to_rsl_rl()["algorithm"]["class_name"] == "PPO"
     assert isaac_lab.to_rsl_rl()["actor"]["distribution_cfg"]["class_name"] == "GaussianDistribution"
     assert (isaac_lab.num_steps_per_env, isaac_lab.algorithm.num_learning_epochs, isaac_lab.algorithm.num_mini_batches,
@@ -131,28 +136,44 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert isaac_lab.actor.activation == isaac_lab.critic.activation == "elu", "Isaac Lab's cartpole uses ELU"
 
 
-def test_solved_needs_both_length_and_reward_per_step():
-    assert is_solved(570, 0.9, 600)
-    assert not is_solved(569, 0.99, 600)
-    assert not is_solved(600, 0.89, 600)
-    assert not is_solved(None, None, 600)
+def summary(length, per_step, full_per_step=None):
+    return EpisodeSummary(1, None, length, per_step, None, int(full_per_step is not None), full_per_step)
 
 
-def test_episode_stats_average_the_ended_episodes():
-    stats = EpisodeStats()
+def test_the_balance_task_is_solved_by_length_and_reward_per_step():
+    solved = tasks.get("cartpole-balance").solved
+    assert solved(summary(570, 0.9), 600)
+    assert not solved(summary(569, 0.99), 600)
+    assert not solved(summary(600, 0.89), 600)
+    assert not solved(EpisodeSummary(0, None, None, None, None), 600)
+
+
+def test_the_swingup_is_solved_by_the_reward_per_step_of_full_episodes():
+    solved = tasks.get("cartpole-swingup").solved
+    assert solved(summary(100, 0.1, full_per_step=0.8), 500), "short first episodes do not count against it"
+    assert not solved(summary(500, 0.95), 500), "no full episode: not solved"
+    assert not solved(summary(500, 0.9, full_per_step=0.79), 500)
+
+
+def test_episode_stats_average_the_ended_episodes_and_the_full_ones():
+    stats = EpisodeStats("cpu", max_episode_length=10)
     ended = torch.tensor([True, True, False])
-    stats.add(ended, torch.tensor([10.0, -2.0, 99.0]), torch.tensor([10, 1, 5]), torch.tensor([True, False, True]))
+    stats.add(ended, torch.tensor([10.0, -2.0, 99.0]), torch.tensor([10, 1, 10]), torch.tensor([True, False, True]))
     summary = stats.pop()
     assert summary.episodes == 2 and summary.mean_return == 4.0 and summary.mean_length == 5.5
     assert math.isclose(summary.mean_reward_per_step, (1.0 - 2.0) / 2) and summary.time_limit_fraction == 0.5
+    assert summary.full_episodes == 1 and summary.full_reward_per_step == 1.0
     assert stats.summary().episodes == 0 and stats.summary().mean_return is None
 
 
-def test_adapter_follows_the_rsl_rl_vecenv_contract():
-    env = RslRlVecEnv(cartpole_warp.make_env(num_envs=8, seed=1, task={"episode_length_s": 0.1}))
+@pytest.mark.parametrize("task", tasks.names())
+def test_adapter_follows_the_rsl_rl_vecenv_contract(task):
+    env = RslRlVecEnv(tasks.make(task, num_envs=8, seed=1, sim={"physics_dt": 1 / 120, "decimation": 2},
+                                 task={"episode_length_s": 0.1}))
+    num_obs = env.env.num_obs
     assert (env.num_envs, env.num_actions, env.max_episode_length) == (8, 1, 6)
     obs = env.get_observations()
-    assert isinstance(obs, TensorDict) and obs["policy"].shape == (8, 4) and obs.batch_size == torch.Size([8])
+    assert isinstance(obs, TensorDict) and obs["policy"].shape == (8, num_obs) and obs.batch_size == torch.Size([8])
     env.episode_length_buf = torch.full((8,), 4, dtype=torch.int32)
     assert env.env.episode_length_buf.tolist() == [4] * 8
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
@@ -161,8 +182,8 @@ def test_adapter_follows_the_rsl_rl_vecenv_contract():
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
     assert dones.tolist() == [1] * 8 and extras["time_outs"].all(), "counters set to 4 reach the 6-step limit"
     assert extras["episode_length"].tolist() == [2] * 8, "the reported length is the steps really run"
-    assert extras["final_obs"].shape == (8, 4)
-    assert obs["policy"].shape == (8, 4) and env.episode_length_buf.tolist() == [0] * 8
+    assert extras["final_obs"].shape == (8, num_obs)
+    assert obs["policy"].shape == (8, num_obs) and env.episode_length_buf.tolist() == [0] * 8
 
 
 def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
@@ -179,38 +200,44 @@ def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
     assert target.read_text() == "complete" and os.listdir(tmp_path) == ["model_3.pt"]
 
 
-def test_run_folders_are_found_newest_first(tmp_path):
+def test_run_folders_are_found_newest_first_in_their_experiment(tmp_path):
     with pytest.raises(RunError, match="no checkpoint under .*run train.py first or pass --checkpoint"):
-        latest_run(tmp_path, "cartpole")
-    old = new_run_dir(tmp_path, "cartpole", "old")
+        latest_run(tmp_path, "cartpole-swingup")
+    old = new_run_dir(tmp_path, "cartpole-swingup", "old")
     old.mkdir(parents=True)
-    new = new_run_dir(tmp_path, "cartpole", "old")
+    new = new_run_dir(tmp_path, "cartpole-swingup", "old")
     new.mkdir()
-    assert old != new and new.parent == tmp_path / "rsl_rl" / "cartpole"
-    cfg = TrainConfig()
+    assert old != new and new.parent == tmp_path / "rsl_rl" / "cartpole-swingup"
+    cfg = train_config("cartpole-swingup")
     cfg.env.num_envs = 32
     for run in (old, new):
         save_config(run, cfg)
         for it in (2, 10):
             (run / f"model_{it}.pt").write_bytes(b"x")
-    assert latest_run(tmp_path, "cartpole") == new
+    assert latest_run(tmp_path, "cartpole-swingup") == new
     assert latest_checkpoint(new).name == "model_10.pt"
-    assert load_config(new).env.num_envs == 32
+    loaded = load_config(new)
+    assert loaded.env.num_envs == 32 and loaded.task == "cartpole-swingup"
+    assert type(loaded.env.task) is tasks.get("cartpole-swingup").env_class.config_class
+    with pytest.raises(RunError, match="experiments there: cartpole-swingup"):
+        latest_run(tmp_path, "cartpole-balance")
     with pytest.raises(ConfigError):
-        new_run_dir(tmp_path, "cartpole", "bad/name")
+        new_run_dir(tmp_path, "cartpole-swingup", "bad/name")
 
 
-def test_learning_curve_png_decodes(tmp_path):
-    history = [{"iteration": i, "episodes": i, "mean_reward_per_step": i / 10, "mean_episode_length": 60.0 * i}
-               for i in range(10)]
-    path = plot_learning_curve(tmp_path / "curve.png", history, env_dt_s=1 / 60, max_episode_length=600)
+@pytest.mark.parametrize("task", tasks.names())
+def test_learning_curve_png_decodes(tmp_path, task):
+    history = [{"iteration": i, "episodes": i, "mean_reward_per_step": i / 10, "mean_episode_length": 60.0 * i,
+                "full_reward_per_step": i / 11 if i > 4 else None} for i in range(10)]
+    path = plot_learning_curve(tmp_path / "curve.png", history, env_dt_s=1 / 60, max_episode_length=600,
+                               solved=tasks.get(task).solved)
     image = Image.open(path)
     image.load()
     assert image.size == (800, 600) and len(image.getcolors(maxcolors=100000)) > 50
 
 
 def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
-    from cartpole_warp.rl.sweep import RunResult, seed_row, table, variant_flags
+    from cartpole_warp.tools.sweep import RunResult, seed_row, table, variant_flags
 
     flags = variant_flags("config=isaac_lab agent.no-cuda-graph agent.actor.hidden-dims=64,64")
     assert flags == ["--config", "isaac_lab", "--agent.no-cuda-graph", "--agent.actor.hidden-dims", "64", "64"]
@@ -219,17 +246,18 @@ def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
     assert (agent.cuda_graph, agent.actor.hidden_dims, agent.algorithm.class_name) == (False, [64, 64], "PPO")
     results = [RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.99), RunResult("a=1", 1, None, None, None, error="x"),
                RunResult("b", 0, None, None, 50)]
-    rows = table(results, ["a=1", "b"], seeds=2).splitlines()
-    assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 3.0 + 4.5 | 100 | 99.0% |",
+    rows = table(results, ["a=1", "b"], seeds=2, task="cartpole-balance").splitlines()
+    assert "play: time_limit_fraction (min)" in rows[0]
+    assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 3.0 + 4.5 | 100 | 0.990 |",
                         "| `--b` | 0/2 | - | - | - | 50 | - |"]
-    assert [seed_row(r) for r in results] == ["| `--a 1` | 0 | 50 | 1.0 | 3.0 + 4.5 | 100 | 99.0% |",
+    assert [seed_row(r) for r in results] == ["| `--a 1` | 0 | 50 | 1.0 | 3.0 + 4.5 | 100 | 0.990 |",
                                               "| `--a 1` | 1 | failed | - | - | - | - |",
                                               "| `--b` | 0 | not solved | - | - | 50 | - |"]
 
 
 @pytest.mark.parametrize("spread", [False, True])
 def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
-    cfg = TrainConfig()
+    cfg = train_config()
     cfg.env.num_envs, cfg.env.task.episode_length_s, cfg.agent.num_steps_per_env = 64, 0.1, 12
     torch.manual_seed(0)
     env = RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=0, task={"episode_length_s": 0.1}))

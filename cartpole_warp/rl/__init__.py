@@ -1,3 +1,3 @@
-"""Training with rsl-rl: the configuration (``config``), the runner (``runner``), one run end to end (``training``),
-run folders (``runs``), episode statistics and "solved" (``metrics``), the learning curve (``curve``) and policy
-rollouts (``rollout``)."""
+"""Training with rsl-rl, for any registered task: the configuration (``config``), the runner (``runner``), the
+sync-free PPO (``ppo``), one run end to end (``training``), several GPUs (``distributed``), run folders (``runs``) and
+the learning curve (``curve``). Nothing here imports a task module: a task comes from the registry by name."""

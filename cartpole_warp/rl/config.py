@@ -1,19 +1,22 @@
-"""Training configuration: ``agent`` is shaped like rsl-rl's own ``train_cfg`` (``RunnerConfig.to_rsl_rl``), ``env``
-is the env's ``EnvConfig``; the rest says where runs go and what the console shows.
+"""Training configuration: ``task`` names the registered task, ``agent`` is shaped like rsl-rl's own ``train_cfg``
+(``RunnerConfig.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
+shows.
 
-A preset (``configs/<name>.yaml``) holds partial overrides of ``TrainConfig`` (sections ``env``, ``agent`` and the
-top-level fields); ``train.py`` and ``play.py`` take every field as a flag (``--agent.algorithm.entropy-coef 0.01``).
+The defaults are the dataclass defaults, then the task's own (``Task.defaults``). A preset (``configs/<name>.yaml``)
+holds partial overrides of ``TrainConfig`` (sections ``env``, ``agent`` and the top-level fields); ``train.py`` and
+``play.py`` take every field as a flag (``--agent.algorithm.entropy-coef 0.01``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated, Generic, Literal
 
 import pydantic
 import tyro
 
+from .. import tasks
 from ..config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
@@ -24,10 +27,12 @@ from ..config import (
     NonNegative,
     NonNegativeInt,
     Positive,
+    TaskT,
     checked,
     from_dict,
     load_preset,
     merge,
+    overrides_dict,
     require,
 )
 
@@ -47,7 +52,7 @@ class DistributionConfig:
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
     init_std: Positive = 1.0
-    """Initial standard deviation (actions are in units of max_push_effort_n)."""
+    """Initial standard deviation (actions are in [-1, 1])."""
 
 
 @dataclass
@@ -59,9 +64,7 @@ class ModelConfig:
     hidden_dims: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [32, 32])
     """Hidden layer widths."""
     activation: Activation = "elu"
-    """Activation function of the hidden layers. 'relu' and 'lrelu' solve as fast at 4096 envs and cost slightly less
-    CPU time (torch's CPU ELU is slow), but with 16384 envs 2 of 5 of their final policies failed play.py, against
-    none with 'elu'."""
+    """Activation function of the hidden layers (docs/benchmarks.md compares them)."""
     obs_normalization: Flag = False
     """Normalise observations with running mean/std statistics inside the network."""
 
@@ -75,8 +78,8 @@ class ActorConfig(ModelConfig):
 
 @dataclass
 class PpoConfig:
-    """rsl-rl ``PPO`` hyper-parameters. The defaults are tuned for wall-clock time to a solved cartpole (one epoch of
-    eight mini-batches, a looser KL target, the sync-free update); ``configs/isaac_lab.yaml`` holds Isaac Lab's."""
+    """rsl-rl ``PPO`` hyper-parameters. The defaults are tuned for wall-clock time to a solved balance task (one epoch
+    of eight mini-batches, a looser KL target, the sync-free update); ``configs/isaac_lab.yaml`` holds Isaac Lab's."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
@@ -124,13 +127,11 @@ class RunnerConfig:
     init_at_random_ep_len: Flag = True
     """Start training with each env's time-out counter at a random point of the time limit (rsl-rl's ``learn``
     argument, as Isaac Lab's train script sets it): time-outs, hence resets from random states, spread over every
-    iteration instead of arriving all at once, and the final policy recovers from the whole reset range (5 of 5
-    seeds reached the time limit in 100% of play's episodes, against 86-100% without). Reported episode lengths
-    stay the steps each episode really ran."""
+    iteration instead of arriving all at once. Reported episode lengths stay the steps each episode really ran."""
     save_interval: Count = 50
     """Write a checkpoint every this many iterations (and always at the end)."""
-    experiment_name: Name = "cartpole"
-    """Folder under <log_dir> that groups the runs of one experiment."""
+    experiment_name: Name | None = None
+    """Folder under <log_dir>/rsl_rl that groups the runs of one experiment; None: the task's name."""
     run_name: Annotated[str, tyro.conf.arg(aliases=("--run-name",))] = ""
     """Suffix of the run folder name (empty: the timestamp alone)."""
     logger: Annotated[MetricsLogger, tyro.conf.arg(aliases=("--logger",))] = "tensorboard"
@@ -169,12 +170,14 @@ class RunnerConfig:
 
 
 @dataclass
-class TrainConfig:
-    """Everything ``train.py`` needs: the env, rsl-rl's runner configuration and where the run goes."""
+class TrainConfig(Generic[TaskT]):
+    """Everything ``train.py`` needs: the task, its env, rsl-rl's runner configuration and where the run goes."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    env: EnvConfig = field(default_factory=EnvConfig)
+    env: EnvConfig[TaskT]
+    task: Name = tasks.DEFAULT_TASK
+    """The registered task (``cartpole_warp.tasks.names()``); set it with --task, which picks its settings."""
     agent: RunnerConfig = field(default_factory=RunnerConfig)
     log_dir: Name = "logs"
     """Root folder of all runs; a run lives in <log_dir>/rsl_rl/<agent.experiment_name>/<timestamp>[_<run_name>]."""
@@ -186,11 +189,17 @@ class TrainConfig:
     """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
     networks are tiny, and more threads fight the env and other processes for cores (10x slower when oversubscribed)."""
 
-    def validate(self) -> TrainConfig:
+    @property
+    def experiment(self) -> str:
+        """The experiment folder's name: ``agent.experiment_name``, or the task's name."""
+        return self.agent.experiment_name or self.task
+
+    def validate(self) -> TrainConfig[TaskT]:
         """Raise ConfigError naming the first invalid value and what is allowed; return self (each field's type and
-        range are written where it is defined; the checks here relate fields)."""
+        range are checked by ``checked`` where flags become a config; the checks here relate fields)."""
         self.env.validate()
-        checked(self)
+        require(isinstance(self.env.task, tasks.get(self.task).env_class.config_class),
+                f"env.task holds {type(self.env.task).__name__}, not the settings of task {self.task!r}")
         rollout = self.env.num_envs * self.agent.num_steps_per_env
         mini_batches = self.agent.algorithm.num_mini_batches
         require(rollout % mini_batches == 0,
@@ -199,10 +208,25 @@ class TrainConfig:
         return self
 
 
-def train_config(preset: str = "default") -> TrainConfig:
-    """TrainConfig from the dataclass defaults and a preset (not validated: flags may still change it)."""
-    return from_dict(TrainConfig, merge(dataclasses.asdict(TrainConfig()), load_preset(preset)), f"preset {preset!r}")
+def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> TrainConfig:
+    """TrainConfig of ``task`` from the dataclass defaults, the task's defaults and a preset (flags may still change
+    it: ``validate`` after them)."""
+    config_class = tasks.get(task).env_class.config_class
+    cls = TrainConfig[config_class]
+    data = merge(dataclasses.asdict(cls(env=EnvConfig(task=config_class()), task=task)), tasks.get(task).defaults)
+    if preset is not None:
+        preset_data = load_preset(preset)
+        require(preset_data.get("task", task) == task,
+                f"preset {preset!r} is for task {preset_data.get('task')!r}, not {task!r}")
+        data = merge(data, overrides_dict(preset_data, f"preset {preset!r}"))
+    return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
+
+
+def load_train_config(data: dict, where: str) -> TrainConfig:
+    """A saved TrainConfig (a run's ``config.yaml``) from its dict: the task it names picks the settings' class."""
+    task = overrides_dict(data, where).get("task", tasks.DEFAULT_TASK)
+    return from_dict(TrainConfig[tasks.get(task).env_class.config_class], data, where)
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",
-           "TrainConfig", "train_config"]
+           "TrainConfig", "checked", "load_train_config", "train_config"]

@@ -7,26 +7,32 @@ from pathlib import Path
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from .metrics import SOLVED_LENGTH_FRACTION, SOLVED_REWARD_PER_STEP
-from .runs import atomic_write
+from ..files import atomic_write
+from ..tasks import SolvedRule
 
 
-def plot_learning_curve(path: Path, history: list[dict], env_dt_s: float, max_episode_length: int | None) -> Path:
-    """PNG of the mean reward per step and the mean episode length (s) of the episodes finished in each iteration,
-    with the thresholds of "solved" as dashed lines; iterations counted from 1."""
-    iterations = [h["iteration"] + 1 for h in history if h["episodes"]]
-    reward = [h["mean_reward_per_step"] for h in history if h["episodes"]]
-    length_s = [h["mean_episode_length"] * env_dt_s for h in history if h["episodes"]]
+def plot_learning_curve(path: Path, history: list[dict], env_dt_s: float, max_episode_length: int | None,
+                        solved: SolvedRule) -> Path:
+    """PNG of the mean reward per step (of full-length episodes too, where the task's rule counts those) and the mean
+    episode length (s) of the episodes finished in each iteration, with the thresholds of the task's ``solved`` rule
+    as dashed lines; iterations counted from 1."""
+    finished = [h for h in history if h["episodes"]]
+    iterations = [h["iteration"] + 1 for h in finished]
     figure = Figure(figsize=(8, 6), layout="constrained")
     top, bottom = figure.subplots(2, 1, sharex=True)
-    top.plot(iterations, reward, color="tab:blue")
-    top.axhline(SOLVED_REWARD_PER_STEP, color="tab:red", linestyle="--", label=f"solved: >= {SOLVED_REWARD_PER_STEP}")
+    top.plot(iterations, [h["mean_reward_per_step"] for h in finished], color="tab:blue", label="finished episodes")
+    if solved.full_episodes_only:
+        full = [h for h in finished if h.get("full_reward_per_step") is not None]
+        top.plot([h["iteration"] + 1 for h in full], [h["full_reward_per_step"] for h in full], color="tab:green",
+                 label="full-length episodes")
+    top.axhline(solved.min_reward_per_step, color="tab:red", linestyle="--",
+                label=f"solved: >= {solved.min_reward_per_step:g}")
     top.set_ylabel("mean reward per step")
-    bottom.plot(iterations, length_s, color="tab:blue")
-    if max_episode_length is not None:
+    bottom.plot(iterations, [h["mean_episode_length"] * env_dt_s for h in finished], color="tab:blue")
+    if max_episode_length is not None and solved.min_length_fraction:
         limit_s = max_episode_length * env_dt_s
-        bottom.axhline(SOLVED_LENGTH_FRACTION * limit_s, color="tab:red", linestyle="--",
-                       label=f"solved: >= {SOLVED_LENGTH_FRACTION:.0%} of the {limit_s:g} s limit")
+        bottom.axhline(solved.min_length_fraction * limit_s, color="tab:red", linestyle="--",
+                       label=f"solved: >= {solved.min_length_fraction:.0%} of the {limit_s:g} s limit")
     bottom.set_ylabel("mean episode length (s)")
     bottom.set_xlabel("iteration")
     bottom.xaxis.set_major_locator(MaxNLocator(integer=True))

@@ -11,6 +11,7 @@ over all processes, and one stop decision for all of them.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -60,8 +61,7 @@ class Ranks:
         if self.local_rank >= cuda_devices:
             raise ConfigError(f"process {self.local_rank} of this host needs cuda:{self.local_rank}, but the host has "
                               f"{cuda_devices} CUDA device(s): start at most {cuda_devices} processes per node")
-        return EnvConfig(num_envs=env.num_envs, device=f"cuda:{self.local_rank}", seed=env.seed + self.rank,
-                         sim=env.sim, task=env.task)
+        return dataclasses.replace(env, device=f"cuda:{self.local_rank}", seed=env.seed + self.rank)
 
 
 SINGLE_PROCESS = Ranks()
@@ -76,11 +76,3 @@ def joint_stop(wanted: str | None, device: str, distributed: bool) -> str | None
     code = torch.tensor([STOP_REASONS.index(wanted)], device=device)
     torch.distributed.all_reduce(code, op=torch.distributed.ReduceOp.MAX)
     return STOP_REASONS[int(code.item())]
-
-
-def all_reduce_sum(values: torch.Tensor, distributed: bool) -> torch.Tensor:
-    """``values`` summed over all processes, in place (nothing to do for one process)."""
-    if distributed:
-        torch.distributed.all_reduce(values, op=torch.distributed.ReduceOp.SUM)
-    return values
-

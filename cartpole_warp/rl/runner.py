@@ -1,10 +1,10 @@
-"""``CartpoleRunner``: rsl-rl's ``OnPolicyRunner`` with the training loop reporting each iteration.
+"""``CartpoleRunner``: rsl-rl's ``OnPolicyRunner`` with the training loop reporting each iteration, for any task.
 
-    runner = CartpoleRunner(RslRlVecEnv(CartpoleEnv(cfg.env)), cfg, log_dir)
+    runner = CartpoleRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, log_dir)
     runner.learn(cfg.agent.max_iterations)     # runner.request_stop() ends it after the current iteration
 
 It overrides, openly, what rsl-rl offers no hook for: ``learn`` (rsl-rl's rollout / returns / update loop, then
-episode statistics summed on the device, the progress, the "solved" decision, the metrics, one console line and
+episode statistics summed on the device, the progress, the task's "solved" decision, the metrics, one console line and
 stop requests after each iteration), ``save`` / ``load`` (atomic checkpoints that carry the progress; clear errors),
 and it adds ``policy`` and ``export``.
 """
@@ -27,14 +27,15 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
+from .. import tasks
+from ..evaluation import EpisodeStats, EpisodeSummary, Policy
+from ..files import atomic_write
 from ..runtime import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import joint_stop
-from .metrics import EpisodeStats, EpisodeSummary, is_solved
 from .ppo import SyncFreePPO
-from .rollout import Policy
-from .runs import Progress, RunError, atomic_write
+from .runs import Progress, RunError
 
 
 class NullLogWriter(LogWriter):
@@ -58,8 +59,9 @@ class CartpoleRunner(OnPolicyRunner):
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None):
         super().__init__(env, cfg.agent.to_rsl_rl(), str(log_dir) if log_dir is not None else None, env.device)
         self.train_cfg = cfg
+        self.solved_rule = tasks.get(cfg.task).solved
         self.progress = Progress()
-        self.episodes = EpisodeStats(env.device)
+        self.episodes = EpisodeStats(env.device, env.max_episode_length)
         self.stop_reason: str | None = None
         self._stop_requested: str | None = None
         graphable = (cfg.agent.cuda_graph and cfg.agent.algorithm.class_name == "SyncFreePPO"
@@ -151,7 +153,7 @@ class CartpoleRunner(OnPolicyRunner):
         now = time.perf_counter()
         iteration_time, self._tick = now - self._tick, now
         steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.gpu_world_size
-        solved = is_solved(stats.mean_length, stats.mean_reward_per_step, self.env.max_episode_length)
+        solved = self.solved_rule(stats, self.env.max_episode_length)
         p = self.progress
         p.iterations, p.env_steps, p.train_time_s = it + 1, p.env_steps + steps, p.train_time_s + iteration_time
         p.history.append({"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
@@ -184,6 +186,8 @@ class CartpoleRunner(OnPolicyRunner):
             scalars.update({"Train/mean_reward": stats.mean_return, "Train/mean_episode_length": stats.mean_length,
                             "Episode/reward_per_step": stats.mean_reward_per_step,
                             "Episode/time_limit_fraction": stats.time_limit_fraction})
+        if stats.full_episodes:
+            scalars["Episode/full_reward_per_step"] = stats.full_reward_per_step
         for tag, value in scalars.items():
             writer.add_scalar(tag, value, it)
 
@@ -193,7 +197,9 @@ class CartpoleRunner(OnPolicyRunner):
         limit = self.env.max_episode_length
         if stats.episodes:
             dt = self.train_cfg.env.sim.env_dt
-            episodes = (f"reward/step {stats.mean_reward_per_step:6.3f} | ep len {stats.mean_length * dt:5.2f} s "
+            full = (f" (full {stats.full_reward_per_step:5.3f})" if stats.full_episodes
+                    else "").ljust(13) if self.solved_rule.full_episodes_only else ""
+            episodes = (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {stats.mean_length * dt:5.2f} s "
                         f"({stats.mean_length:5.0f}/{limit}) | {stats.episodes:5d} ep")
         else:
             episodes = "no episode finished this iteration".ljust(60)
@@ -240,8 +246,8 @@ class CartpoleRunner(OnPolicyRunner):
         return act
 
     def export(self, out_dir: Path) -> list[Path]:
-        """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' (N, 4), output
-        'actions' (N, 1), any batch size N) and TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's
+        """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' (N, num_obs),
+        output 'actions' (N, num_actions), any batch size N) and TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's
         ``export_policy_to_onnx`` fixes the batch to 1, so the ONNX export is torch's with a dynamic batch
         dimension. torch's ONNX exporter reports its progress on stdout and in warnings; that report is shown only
         if the export fails."""
@@ -272,4 +278,5 @@ class CartpoleRunner(OnPolicyRunner):
 
 def _episode_means(stats: EpisodeSummary) -> dict:
     return {"episodes": stats.episodes, "mean_return": stats.mean_return, "mean_episode_length": stats.mean_length,
-            "mean_reward_per_step": stats.mean_reward_per_step, "time_limit_fraction": stats.time_limit_fraction}
+            "mean_reward_per_step": stats.mean_reward_per_step, "time_limit_fraction": stats.time_limit_fraction,
+            "full_episodes": stats.full_episodes, "full_reward_per_step": stats.full_reward_per_step}

@@ -13,18 +13,17 @@ import dataclasses
 import datetime
 import importlib.metadata
 import json
-import os
 import platform
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import yaml
 
-from ..config import ConfigError, from_dict
-from .config import TrainConfig
+from ..config import ConfigError
+from ..files import write_text
+from .config import TrainConfig, load_train_config
 
 CONFIG_FILE = "config.yaml"
 SUMMARY_FILE = "summary.json"
@@ -72,38 +71,15 @@ def latest_checkpoint(run_dir: Path) -> Path:
 
 
 def latest_run(log_dir: str | Path, experiment: str) -> Path:
-    """The newest run folder (by name, i.e. timestamp) that holds a config and a checkpoint."""
+    """The newest run folder (by name, i.e. timestamp) of ``experiment`` that holds a config and a checkpoint."""
     root = experiment_dir(log_dir, experiment)
     runs = sorted(p for p in root.glob("*") if (p / CONFIG_FILE).is_file() and list_checkpoints(p))
     if not runs:
-        raise RunError(f"no checkpoint under {root}; run train.py first or pass --checkpoint")
+        others = sorted(p.name for p in root.parent.glob("*") if p.is_dir())
+        hint = (f" (experiments there: {', '.join(others)}; pick one with --task or --agent.experiment-name)"
+                if others else "")
+        raise RunError(f"no checkpoint under {root}{hint}; run train.py first or pass --checkpoint")
     return runs[-1]
-
-
-def atomic_write(path: Path, write) -> Path:
-    """Call ``write(tmp_path)`` on a temporary file next to ``path``, then rename it onto ``path``:
-    readers see the old file or the complete new one, never a half-written one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return path
-
-
-def write_text(path: Path, text: str) -> Path:
-    """Write a text file atomically."""
-    return atomic_write(path, lambda tmp: Path(tmp).write_text(text))
 
 
 def save_config(run_dir: Path, cfg: TrainConfig) -> Path:
@@ -117,7 +93,7 @@ def load_config(run_dir: Path) -> TrainConfig:
     if not path.is_file():
         raise RunError(f"{path} not found: is {run_dir} a run folder?")
     try:
-        return from_dict(TrainConfig, yaml.safe_load(path.read_text()) or {}, str(path))
+        return load_train_config(yaml.safe_load(path.read_text()) or {}, str(path))
     except (yaml.YAMLError, ConfigError) as err:
         raise RunError(f"cannot read {path}: {err}") from None
 
@@ -165,6 +141,7 @@ class RunSummary:
     solved: bool
     solved_at: dict | None
     solved_definition: str
+    task: str
     num_envs: int
     """Envs of all processes together."""
     processes: int

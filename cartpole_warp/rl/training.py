@@ -16,18 +16,14 @@ from pathlib import Path
 
 import torch
 
+from .. import tasks
 from ..config import ConfigError
-from ..env import CartpoleEnv
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .curve import plot_learning_curve
 from .distributed import SINGLE_PROCESS, Ranks
-from .metrics import SOLVED_LENGTH_FRACTION, SOLVED_REWARD_PER_STEP
 from .runner import CartpoleRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_config
-
-SOLVED_DEFINITION = (f"mean episode length >= {SOLVED_LENGTH_FRACTION:.0%} of the time limit and mean reward per step "
-                     f">= {SOLVED_REWARD_PER_STEP} over one iteration's finished episodes")
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -52,7 +48,8 @@ class Training:
         torch.manual_seed(env_cfg.seed)
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
-        self.env = RslRlVecEnv(CartpoleEnv(env_cfg))
+        self.task = tasks.get(cfg.task)
+        self.env = RslRlVecEnv(self.task.env_class(env_cfg))
         self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
                                      self.run_dir if ranks.writes else None)
         if resume_from is not None:
@@ -103,12 +100,14 @@ class Training:
             collection_ms=median_of(progress.history, "collection_ms"),
             learning_ms=median_of(progress.history, "learning_ms"),
             final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
-                                            "mean_reward_per_step", "time_limit_fraction")},
+                                            "mean_reward_per_step", "time_limit_fraction", "full_episodes",
+                                            "full_reward_per_step")},
             max_episode_length=self.max_episode_length if has_limit else None,
             env_dt_s=self.cfg.env.sim.env_dt,
             solved=progress.solved_at is not None,
             solved_at=progress.solved_at,
-            solved_definition=SOLVED_DEFINITION,
+            solved_definition=self.task.solved.describe(self.max_episode_length),
+            task=self.cfg.task,
             num_envs=self.cfg.env.num_envs * self.ranks.world_size,
             processes=self.ranks.world_size,
             device=self.env.device,
@@ -122,4 +121,4 @@ class Training:
         """Draw ``learning_curve.png`` from the progress history."""
         has_limit = self.cfg.env.task.episode_length_s is not None
         return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.cfg.env.sim.env_dt,
-                                   self.max_episode_length if has_limit else None)
+                                   self.max_episode_length if has_limit else None, self.task.solved)

@@ -1,9 +1,9 @@
 """Side views of single envs drawn with Pillow (no GL, no display): GIF frames, video frames and the ``rgb_array``
 frames of the gymnasium and SB3 wrappers, all from one renderer.
 
-Geometry comes from the Newton model (box shapes, their body, size, offset and colour; the model's up axis is up,
-the rail's long axis runs to the right), motion from body transforms (``Geometry.body_transforms``), so nothing here
-knows cartpole dimensions.
+Geometry comes from the Newton model (box and capsule shapes, their body, size, offset and colour; the model's up axis
+is up, the widest shape's long axis runs to the right), motion from body transforms (``Geometry.body_transforms``), so
+nothing here knows a robot's dimensions.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import numpy as np
 import warp as wp
 from PIL import Image, ImageDraw, ImageFont
 
-from ..env import CartpoleEnv
-from ..rl.runs import atomic_write
+from ..env import BatchedEnv
+from ..files import atomic_write
 
 BACKGROUND = (250, 250, 250)
 INK = (40, 40, 40)
@@ -32,21 +32,41 @@ def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v + w * t + np.cross(xyz, t)
 
 
+BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+_golden = np.pi * (3.0 - np.sqrt(5.0))
+_heights = np.linspace(-1.0, 1.0, 48)
+SPHERE_POINTS = np.stack([np.sqrt(1 - _heights**2) * np.cos(_golden * np.arange(48)),
+                          np.sqrt(1 - _heights**2) * np.sin(_golden * np.arange(48)), _heights], axis=1)
+"""Unit-sphere points (Fibonacci lattice) whose projections outline a capsule's rounded ends."""
+
+
+def outline_points(kind: int, scale: np.ndarray) -> np.ndarray | None:
+    """Points (k, 3) in the shape's frame whose convex hull is the shape: a box's corners, or a capsule's end spheres
+    (Newton's capsule: scale = (radius, half height, 0) along local Z); None for other shapes."""
+    if kind == newton.GeoType.BOX:
+        return BOX_CORNERS * scale
+    if kind == newton.GeoType.CAPSULE:
+        radius, half_height = scale[0], scale[1]
+        return np.concatenate([SPHERE_POINTS * radius + (0.0, 0.0, end) for end in (-half_height, half_height)])
+    return None
+
+
 @dataclass
-class Box:
-    """One box shape of the recorded env."""
+class Shape:
+    """One drawn shape (box or capsule) of the recorded env."""
 
     name: str
     body: int
     """Index into the recorded bodies, -1 for a static shape."""
-    half_extents_m: np.ndarray
+    points_m: np.ndarray
+    """(k, 3) points in the shape's frame whose convex hull is the shape."""
     local_transform: np.ndarray
     """(7,) position (m) and (x, y, z, w) quaternion relative to the body (to the world if static)."""
     color_srgb: tuple[float, float, float]
 
 
 class Geometry:
-    """The boxes and bodies of one env (world) of a Newton model, and their poses over time."""
+    """The shapes and bodies of one env (world) of a Newton model, and their poses over time."""
 
     def __init__(self, model: newton.Model, world: int = 0):
         self.model = model
@@ -57,44 +77,43 @@ class Geometry:
         kinds, scales = model.shape_type.numpy(), model.shape_scale.numpy()
         transforms, colors = model.shape_transform.numpy(), model.shape_color.numpy()
         body_index = {int(b): i for i, b in enumerate(self.body_ids)}
-        self.boxes = []
+        self.shapes = []
         for s in np.flatnonzero(shape_world == world):
-            if kinds[s] != newton.GeoType.BOX:
+            points = outline_points(kinds[s], scales[s].astype(np.float64))
+            if points is None:
                 continue
             parts = model.shape_label[s].strip("/").split("/")
             body = body_index.get(int(shape_body[s]), -1)
             name = self.body_names[body] if body >= 0 else parts[-2] if len(parts) > 1 else parts[-1]
-            self.boxes.append(Box(name=name, body=body,
-                                  half_extents_m=scales[s].astype(np.float64),
+            self.shapes.append(Shape(name=name, body=body, points_m=points,
                                   local_transform=transforms[s].astype(np.float64),
                                   color_srgb=tuple(float(c) for c in colors[s])))
         self._fk_mask = wp.array(model.articulation_world.numpy() == world, dtype=wp.bool, device=model.device)
         up = int(model.up_axis)
-        widest = max(self.boxes, key=lambda box: box.half_extents_m.max(), default=None)
+        widest = max(self.shapes, key=lambda shape: np.ptp(shape.points_m, axis=0).max(), default=None)
         across = [axis for axis in (0, 1, 2) if axis != up]
         if widest is not None:
-            extent = np.abs(_quat_rotate(widest.local_transform[3:], np.diag(widest.half_extents_m))).sum(axis=0)
+            extent = np.ptp(_quat_rotate(widest.local_transform[3:], widest.points_m), axis=0)
             across.sort(key=lambda axis: -extent[axis])
         self.view_axes = (across[0], up)
-        """World axes drawn to the right (the widest box's long axis: the rail) and upwards (the model's up axis)."""
+        """World axes drawn to the right (the widest shape's long axis, e.g. the rail) and upwards (the model's up axis)."""
 
     def body_transforms(self, state: newton.State) -> np.ndarray:
         """(bodies, 7) world transforms of the env's bodies, from the state's joint coordinates."""
         newton.eval_fk(self.model, state.joint_q, state.joint_qd, state, mask=self._fk_mask)
         return state.body_q.numpy()[self.body_ids].astype(np.float64)
 
-    def outlines(self, transforms: np.ndarray) -> list[tuple[Box, np.ndarray]]:
-        """Each box with its corners (8, 2) in view coordinates (right, up; m) for body ``transforms``."""
-        return [(box, self.box_corners(box, transforms[box.body] if box.body >= 0 else None)[:, self.view_axes])
-                for box in self.boxes]
+    def outlines(self, transforms: np.ndarray) -> list[tuple[Shape, np.ndarray]]:
+        """Each shape with its outline points (k, 2) in view coordinates (right, up; m) for body ``transforms``."""
+        return [(shape, self.shape_points(shape, transforms[shape.body] if shape.body >= 0 else None)[:, self.view_axes])
+                for shape in self.shapes]
 
-    def box_corners(self, box: Box, body_transform: np.ndarray | None) -> np.ndarray:
-        """(8, 3) world corners of ``box`` given its body's transform (None for a static box)."""
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
-        local = box.local_transform
-        points = _quat_rotate(np.broadcast_to(local[3:], (8, 4)), signs * box.half_extents_m) + local[:3]
+    def shape_points(self, shape: Shape, body_transform: np.ndarray | None) -> np.ndarray:
+        """(k, 3) world outline points of a shape given its body's transform (None for a static shape)."""
+        local, count = shape.local_transform, len(shape.points_m)
+        points = _quat_rotate(np.broadcast_to(local[3:], (count, 4)), shape.points_m) + local[:3]
         if body_transform is not None:
-            points = _quat_rotate(np.broadcast_to(body_transform[3:], (8, 4)), points) + body_transform[:3]
+            points = _quat_rotate(np.broadcast_to(body_transform[3:], (count, 4)), points) + body_transform[:3]
         return points
 
 
@@ -118,7 +137,7 @@ def _convex_hull(points: np.ndarray) -> list[tuple[float, float]]:
 
 
 class SideView:
-    """Draws the boxes of one env inside fixed bounds (view coordinates, m) at ``width_px``; the height follows the
+    """Draws the shapes of one env inside fixed bounds (view coordinates, m) at ``width_px``; the height follows the
     bounds' aspect, both rounded to even pixels (video encoders need them)."""
 
     def __init__(self, geometry: Geometry, low: np.ndarray, high: np.ndarray, width_px: int = 640):
@@ -130,14 +149,14 @@ class SideView:
     @classmethod
     def around(cls, geometry: Geometry, frames: Sequence[np.ndarray], width_px: int = 640,
                reach: bool = False) -> SideView:
-        """Bounds holding the boxes in every one of ``frames`` (body transforms), with a 5% margin; ``reach`` also
-        holds the moving boxes turned upside down (for live frames, whose future poses are unknown)."""
+        """Bounds holding the shapes in every one of ``frames`` (body transforms), with a 5% margin; ``reach`` also
+        holds the moving shapes turned upside down (for live frames, whose future poses are unknown)."""
         corners = np.concatenate([c for transforms in frames for _, c in geometry.outlines(transforms)])
         low, high = corners.min(axis=0), corners.max(axis=0)
         if reach:
-            moving = np.concatenate([c for transforms in frames for box, c in geometry.outlines(transforms)
-                                     if box.body >= 0])
-            static = [c for box, c in geometry.outlines(frames[0]) if box.body < 0]
+            moving = np.concatenate([c for transforms in frames for shape, c in geometry.outlines(transforms)
+                                     if shape.body >= 0])
+            static = [c for shape, c in geometry.outlines(frames[0]) if shape.body < 0]
             center = np.concatenate(static).mean(axis=0)[1] if static else moving[:, 1].mean()
             span = np.abs(moving[:, 1] - center).max()
             low[1], high[1] = min(low[1], center - span), max(high[1], center + span)
@@ -149,10 +168,10 @@ class SideView:
         width, height = self.size
         image = Image.new("RGB", self.size, BACKGROUND)
         draw = ImageDraw.Draw(image)
-        for box, corners in self.geometry.outlines(transforms):
+        for shape, corners in self.geometry.outlines(transforms):
             points = [((x - self.low[0]) * self.scale, height - (z - self.low[1]) * self.scale)
                       for x, z in _convex_hull(corners)]
-            draw.polygon(points, fill=tuple(int(255 * c) for c in box.color_srgb), outline=INK)
+            draw.polygon(points, fill=tuple(int(255 * c) for c in shape.color_srgb), outline=INK)
         if caption:
             draw.text((8, 4), caption, fill=INK, font=self.font)
         return image
@@ -171,11 +190,11 @@ def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, fra
 
 
 class EnvFrames(Sequence):
-    """``frames[i]``: env ``i`` of a ``CartpoleEnv`` now, as an (H, W, 3) uint8 array, drawn when asked (a vector
+    """``frames[i]``: env ``i`` of a ``BatchedEnv`` now, as an (H, W, 3) uint8 array, drawn when asked (a vector
     env's ``render()`` returns this sequence: rendering one env costs one picture, not ``num_envs``). The framing is
-    fixed at construction from env 0: the rail across, the pole's reach up and down."""
+    fixed at construction from env 0: the widest static shape across, the moving shapes' reach up and down."""
 
-    def __init__(self, env: CartpoleEnv, width_px: int = 640):
+    def __init__(self, env: BatchedEnv, width_px: int = 640):
         self.env = env
         self._geometries: dict[tuple[int, int], Geometry] = {}
         first = self._geometry(0)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from newton.viewer import ViewerUSD
 
-from ..rl.runs import atomic_write
+from ..files import atomic_write
 from ..scene import Scene
 from .frames import Geometry, SideView, write_gif
 

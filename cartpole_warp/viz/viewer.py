@@ -14,14 +14,14 @@ import newton
 import torch
 import warp as wp
 
-from ..env import CartpoleEnv
+from ..env import BatchedEnv
 
 ROWS = 4
 """Envs shown: the first ones, one row each."""
 ROW_SPACING_M = 1.6
 """Vertical distance between the rows (m)."""
 VIEW_WIDTH_M = 9.0
-"""Width of the view at the rails (m): the 8 m rail with a margin."""
+"""Width of the view at the rows (m): an 8 m rail with a margin."""
 
 
 class ViewerUnavailable(RuntimeError):
@@ -41,7 +41,7 @@ def check_viewer():
                                 "pip install 'cartpole_warp[viz]'; or run with --headless") from None
 
 
-def open_viewer(env: CartpoleEnv):
+def open_viewer(env: BatchedEnv):
     """A ``ViewerGL`` showing the first envs of ``env.scene``, side-on (looking along -X at the Y rails, Z up)."""
     check_viewer()
     from newton.viewer import ViewerGL
@@ -62,7 +62,7 @@ def open_viewer(env: CartpoleEnv):
     return viewer
 
 
-def view_interactively(env: CartpoleEnv, policy: Callable[[torch.Tensor], torch.Tensor],
+def view_interactively(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tensor],
                        max_steps: int | None = None) -> int:
     """Run ``policy`` in Newton's viewer until its window closes (or ``max_steps`` env steps); return the steps run.
     ViewerUnavailable if the viewer cannot open."""

@@ -1,12 +1,14 @@
-"""gymnasium adapters: ``CartpoleGymEnv`` (one env, ``gymnasium.Env``) and ``CartpoleVectorEnv`` (batched).
+"""gymnasium adapters of any registered task: ``CartpoleGymEnv`` (one env, ``gymnasium.Env``) and
+``CartpoleVectorEnv`` (batched).
 
     import gymnasium as gym
-    import cartpole_warp  # registers the ids below
+    import cartpole_warp  # registers every task's ids (its Task.gym_ids)
 
     env = gym.make("cartpole_warp/CartpoleTutorial-v0")  # the Isaac Sim tutorial, one env
-    envs = gym.make_vec("cartpole_warp/Cartpole-v0", num_envs=4096, vectorization_mode="vector_entry_point")
+    envs = gym.make_vec("cartpole_warp/CartpoleSwingup-v0", num_envs=4096, vectorization_mode="vector_entry_point")
 
-Both are thin translations of ``CartpoleEnv`` (torch in, numpy out); the task logic lives in the env.
+Both are thin translations of a ``BatchedEnv`` (torch in, numpy out); the task logic lives in the env, and the
+spaces come from its sizes.
 """
 
 from __future__ import annotations
@@ -19,33 +21,30 @@ import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..env import CartpoleEnv, make_env
-from ..kernels import END_REASONS
-
-ENV_IDS = {"cartpole_warp/Cartpole-v0": "default", "cartpole_warp/CartpoleTutorial-v0": "tutorial"}
-"""Registered gymnasium ids and the preset each builds. Neither sets ``max_episode_steps``: the env truncates
-by itself (``default``: 10 s = 600 steps) or never (``tutorial``, like the Isaac Sim tutorial)."""
+from .. import tasks
+from ..env import BatchedEnv
 
 
-def observation_space() -> gym.spaces.Box:
-    """One env's observation space: [cart_pos (m), cart_vel (m/s), pole_angle (rad), pole_vel (rad/s)]."""
-    return gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
+def observation_space(env: BatchedEnv) -> gym.spaces.Box:
+    """One env's observation space: ``env.num_obs`` unbounded floats (the task's docstring names them)."""
+    return gym.spaces.Box(-np.inf, np.inf, (env.num_obs,), np.float32)
 
 
-def action_space() -> gym.spaces.Box:
-    """One env's action space: the cart force as a fraction of ``task.max_push_effort_n``."""
-    return gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+def action_space(env: BatchedEnv) -> gym.spaces.Box:
+    """One env's action space: ``env.num_actions`` values in [-1, 1] (the env clips to it)."""
+    return gym.spaces.Box(-1.0, 1.0, (env.num_actions,), np.float32)
 
 
-def actions_tensor(actions, num_envs: int, device: str) -> torch.Tensor:
-    """(num_envs, 1) float32 tensor on ``device`` from an array-like of num_envs actions."""
-    array = np.asarray(actions, dtype=np.float32)
-    if array.size != num_envs:
-        raise ValueError(f"expected {num_envs} action value(s) (shape ({num_envs}, 1)), got shape {array.shape}")
-    return torch.from_numpy(array.reshape(num_envs, 1)).to(device)
+def actions_tensor(actions, num_envs: int, env: BatchedEnv) -> torch.Tensor:
+    """(num_envs, num_actions) float32 tensor on the env's device from an array-like of that many values."""
+    array, shape = np.asarray(actions, dtype=np.float32), (num_envs, env.num_actions)
+    if array.size != num_envs * env.num_actions:
+        raise ValueError(f"expected {array.size and num_envs * env.num_actions} action value(s) (shape {shape}), "
+                         f"got shape {array.shape}")
+    return torch.from_numpy(array.reshape(shape)).to(env.device)
 
 
-def env_frames(core: CartpoleEnv, render_mode: str | None):
+def env_frames(core: BatchedEnv, render_mode: str | None):
     """The frames behind ``render()`` for ``render_mode`` ('rgb_array' or None: nothing is drawn)."""
     if render_mode is None:
         return None
@@ -56,46 +55,53 @@ def env_frames(core: CartpoleEnv, render_mode: str | None):
     return EnvFrames(core)
 
 
-def render_metadata(core: CartpoleEnv) -> dict:
+def render_metadata(core: BatchedEnv) -> dict:
     """``render_modes`` and ``render_fps`` (one frame per env step) for an env's metadata."""
     return {"render_modes": ["rgb_array"], "render_fps": round(1.0 / core.env_dt)}
 
 
+def env_ids() -> dict[str, tuple[str, str | None]]:
+    """Every registered task's gymnasium ids: id -> (task name, preset). None sets ``max_episode_steps``: the env
+    truncates by itself (at its time limit) or never (the ``tutorial`` preset, like the Isaac Sim tutorial)."""
+    return {env_id: (name, preset) for name in tasks.names() for env_id, preset in tasks.get(name).gym_ids.items()}
+
+
 def register_envs() -> None:
-    """Register ``ENV_IDS`` with gymnasium (idempotent); ``import cartpole_warp`` calls it."""
-    for env_id, preset in ENV_IDS.items():
+    """Register ``env_ids()`` with gymnasium (idempotent); ``import cartpole_warp`` calls it."""
+    for env_id, (task, preset) in env_ids().items():
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
                 entry_point="cartpole_warp.wrappers.gymnasium:CartpoleGymEnv",
                 vector_entry_point="cartpole_warp.wrappers.gymnasium:CartpoleVectorEnv",
-                kwargs={"preset": preset},
+                kwargs={"task_name": task, "preset": preset},
             )
 
 
 class CartpoleGymEnv(gym.Env):
-    """One cartpole as a ``gymnasium.Env`` (the task is ``CartpoleEnv``'s, with ``num_envs=1``).
+    """One env of a task as a ``gymnasium.Env`` (the task's ``BatchedEnv`` with ``num_envs=1``).
 
     ``step`` returns the observation at which an episode ends, ``reset`` starts the next one. After an ending
     step, ``reset()`` without a seed continues from the reset state the env already sampled, so the trajectory
-    equals that of ``CartpoleEnv(num_envs=1)`` with the same seed and actions. ``reset(seed=s)`` re-seeds the
+    equals that of the batched env with ``num_envs=1``, the same seed and actions. ``reset(seed=s)`` re-seeds the
     env's RNG. Stepping past an ending step without ``reset`` continues in the next episode.
     ``info`` on an ending step: ``episode_return``, ``episode_length`` and ``end_reason`` (a name).
 
-    Arguments: ``preset`` ('tutorial', 'default' or a YAML path), ``device``, ``seed`` (the RNG seed until
-    ``reset(seed=...)``; default the preset's) and ``make_env``'s nested overrides, e.g. ``task={...}``.
+    Arguments: ``task_name`` (a registered task), ``preset`` (a name under configs/, a YAML path or None: the task's
+    defaults), ``device``, ``seed`` (the RNG seed until ``reset(seed=...)``; default the preset's) and
+    ``tasks.make``'s nested overrides of the env config, e.g. ``task={...}`` (the task's settings).
     """
 
     metadata = {"render_modes": ["rgb_array"]}
 
-    def __init__(self, preset: str = "tutorial", device: str = "cpu", seed: int | None = None,
-                 render_mode: str | None = None, **sim_task_overrides):
-        self.core: CartpoleEnv = make_env(num_envs=1, device=device, seed=seed, preset=preset, **sim_task_overrides)
+    def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = "tutorial", device: str = "cpu",
+                 seed: int | None = None, render_mode: str | None = None, **overrides):
+        self.core = tasks.make(task_name, num_envs=1, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **render_metadata(self.core)}
         self._frames = env_frames(self.core, render_mode)
-        self.observation_space = observation_space()
-        self.action_space = action_space()
+        self.observation_space = observation_space(self.core)
+        self.action_space = action_space(self.core)
         self._episode_ended = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -108,7 +114,7 @@ class CartpoleGymEnv(gym.Env):
         return obs[0].cpu().numpy(), {}
 
     def step(self, action):
-        obs, reward, terminated, truncated, info = self.core.step(actions_tensor(action, 1, self.core.device))
+        obs, reward, terminated, truncated, info = self.core.step(actions_tensor(action, 1, self.core))
         terminated, truncated = bool(terminated[0]), bool(truncated[0])
         self._episode_ended = terminated or truncated
         step_info = {}
@@ -117,7 +123,7 @@ class CartpoleGymEnv(gym.Env):
             step_info = {
                 "episode_return": float(info["episode_return"][0]),
                 "episode_length": int(info["episode_length"][0]),
-                "end_reason": END_REASONS[int(info["end_reason"][0])],
+                "end_reason": self.core.end_reasons[int(info["end_reason"][0])],
             }
         return obs[0].cpu().numpy(), float(reward[0]), terminated, truncated, step_info
 
@@ -130,30 +136,29 @@ class CartpoleGymEnv(gym.Env):
 
 
 class CartpoleVectorEnv(VectorEnv):
-    """The batched ``CartpoleEnv`` as a ``gymnasium.vector.VectorEnv`` (numpy in and out, no loop over envs).
+    """A task's ``BatchedEnv`` as a ``gymnasium.vector.VectorEnv`` (numpy in and out, no loop over envs).
 
     Same-step autoreset (``metadata["autoreset_mode"]``): an env that ends returns the first observation of
     its next episode. On steps where any env ended, ``info`` holds (gymnasium 1.x convention):
 
-    - ``final_obs`` (N, 4) float32, the observations at which episodes ended, valid where ``_final_obs`` (N,) bool;
-    - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of ``kernels.END_REASONS``),
+    - ``final_obs`` (N, num_obs) float32, the observations at which episodes ended, valid where ``_final_obs`` (N,) bool;
+    - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of the env's ``end_reasons``),
       each with its ``_key`` mask}, valid where ``_final_info``.
 
-    Arguments as for ``CartpoleGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to 'default'.
+    Arguments as for ``CartpoleGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to None.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
 
-    def __init__(self, num_envs: int | None = None, preset: str = "default", device: str = "cpu",
-                 seed: int | None = None, render_mode: str | None = None, **sim_task_overrides):
-        self.core: CartpoleEnv = make_env(num_envs=num_envs, device=device, seed=seed, preset=preset,
-                                          **sim_task_overrides)
+    def __init__(self, num_envs: int | None = None, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None,
+                 device: str = "cpu", seed: int | None = None, render_mode: str | None = None, **overrides):
+        self.core = tasks.make(task_name, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **render_metadata(self.core)}
         self._frames = env_frames(self.core, render_mode)
         self.num_envs = self.core.num_envs
-        self.single_observation_space = observation_space()
-        self.single_action_space = action_space()
+        self.single_observation_space = observation_space(self.core)
+        self.single_action_space = action_space(self.core)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
@@ -164,7 +169,7 @@ class CartpoleVectorEnv(VectorEnv):
 
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.core.step(
-            actions_tensor(actions, self.num_envs, self.core.device))
+            actions_tensor(actions, self.num_envs, self.core))
         terminated, truncated = terminated.cpu().numpy(), truncated.cpu().numpy()
         done = terminated | truncated
         infos = {}

@@ -1,7 +1,7 @@
-"""rsl-rl ``VecEnv`` adapter for ``CartpoleEnv`` (rsl-rl-lib 5.5).
+"""rsl-rl ``VecEnv`` adapter for any task's ``BatchedEnv`` (rsl-rl-lib 5.5).
 
     from rsl_rl.runners import OnPolicyRunner
-    env = RslRlVecEnv(cartpole_warp.make_env(num_envs=4096))
+    env = RslRlVecEnv(cartpole_warp.tasks.make("cartpole-swingup", num_envs=4096))
     runner = OnPolicyRunner(env, train_cfg, log_dir, device=env.device)
 """
 
@@ -11,19 +11,19 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from ..env import CartpoleEnv
+from ..env import BatchedEnv
 
 
 class RslRlVecEnv(VecEnv):
-    """Presents a ``CartpoleEnv`` as an rsl-rl ``VecEnv``, without waiting for the device.
+    """Presents a ``BatchedEnv`` as an rsl-rl ``VecEnv``, without waiting for the device.
 
-    Observations are ``TensorDict({"policy": (N, 4)})``; ``dones`` is terminated | truncated (int64);
+    Observations are ``TensorDict({"policy": (N, num_obs)})``; ``dones`` is terminated | truncated (int64);
     ``extras["time_outs"]`` marks truncations so PPO bootstraps them. ``extras`` also carries the env's ``info``
     (``episode_return``, ``episode_length``, ``end_reason``, ``final_obs``: valid where ``dones``), from which a
     training loop can keep episode statistics without indexing or a host sync per step.
     """
 
-    def __init__(self, env: CartpoleEnv):
+    def __init__(self, env: BatchedEnv):
         self.env = env
         self.num_envs = env.num_envs
         self.num_actions = env.num_actions
@@ -44,7 +44,7 @@ class RslRlVecEnv(VecEnv):
         return TensorDict({"policy": obs}, batch_size=[self.num_envs], device=self.device)
 
     def get_observations(self) -> TensorDict:
-        """Current observations as ``TensorDict({"policy": (N, 4)})``."""
+        """Current observations as ``TensorDict({"policy": (N, num_obs)})``."""
         return self._wrap(self.env.get_observations())
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:

@@ -1,4 +1,4 @@
-"""Stable-Baselines3 adapter: ``CartpoleSb3VecEnv``, the batched ``CartpoleEnv`` as an SB3 ``VecEnv``.
+"""Stable-Baselines3 adapter: ``CartpoleSb3VecEnv``, a task's ``BatchedEnv`` as an SB3 ``VecEnv``.
 
     from stable_baselines3 import PPO
     from cartpole_warp import make_env
@@ -18,26 +18,26 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from ..env import CartpoleEnv
+from ..env import BatchedEnv
 from .gymnasium import action_space, actions_tensor, env_frames, observation_space, render_metadata
 
 
 class CartpoleSb3VecEnv(VecEnv):
-    """SB3 ``VecEnv`` over one batched ``CartpoleEnv`` (one copy of the data per step, no loop over envs).
+    """SB3 ``VecEnv`` over one ``BatchedEnv`` of any task (one copy of the data per step, no loop over envs).
 
-    ``step_wait`` returns numpy (obs (N, 4) float32, rewards (N,) float32, dones (N,) bool, infos). Envs that
+    ``step_wait`` returns numpy (obs (N, num_obs) float32, rewards (N,) float32, dones (N,) bool, infos). Envs that
     end are already reset (SB3's convention); their info holds ``terminal_observation``, ``TimeLimit.truncated``
     and ``episode`` {``r``, ``l``, ``t``} as SB3's ``Monitor`` writes it, so no Monitor wrapper is needed.
     ``seed(s)`` takes effect at the next ``reset`` (SB3's convention) and re-seeds the env's RNG with ``s``.
 
-    The N sub-envs share one ``CartpoleEnv``: ``get_attr``, ``set_attr`` and ``env_method`` act on it once
+    The N sub-envs share one ``BatchedEnv``: ``get_attr``, ``set_attr`` and ``env_method`` act on it once
     and report its value for each requested index. ``episode_count`` counts the episodes ended so far.
     """
 
-    def __init__(self, env: CartpoleEnv, render_mode: str | None = None):
+    def __init__(self, env: BatchedEnv, render_mode: str | None = None):
         self.env = env
         self.render_mode = render_mode
-        super().__init__(env.num_envs, observation_space(), action_space())
+        super().__init__(env.num_envs, observation_space(env), action_space(env))
         self.metadata = {**self.metadata, **render_metadata(env)}
         self._frames = env_frames(env, render_mode)
         self.episode_count = 0
@@ -51,7 +51,7 @@ class CartpoleSb3VecEnv(VecEnv):
         return obs.cpu().numpy()
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._actions = actions_tensor(actions, self.num_envs, self.env.device)
+        self._actions = actions_tensor(actions, self.num_envs, self.env)
 
     def step_wait(self):
         if self._actions is None:

@@ -1,7 +1,8 @@
 """Where the time of one PPO iteration goes, for the training settings given as train.py flags.
 
-    python -m cartpole_warp.rl.timing --device cuda:0                       # the default settings
-    python -m cartpole_warp.rl.timing --device cuda:0 --config isaac_lab    # Isaac Lab's
+    python -m cartpole_warp.tools.timing --device cuda:0                            # the default task and settings
+    python -m cartpole_warp.tools.timing --device cuda:0 --config isaac_lab         # Isaac Lab's
+    python -m cartpole_warp.tools.timing --device cuda:0 --task cartpole-swingup    # another task
 
 Times (device-synchronised, means over repeats after three warm-up iterations, by which time training has captured
 its CUDA graphs on a GPU): ``env.step`` alone; one rollout step launched op by op (policy ``act`` + ``env.step`` +
@@ -18,11 +19,11 @@ from collections.abc import Callable
 
 import torch
 
+from .. import tasks
 from ..cli import quiet_libraries
-from ..env import CartpoleEnv
+from ..rl.runner import CartpoleRunner
 from ..train import resolve
 from ..wrappers.rsl_rl import RslRlVecEnv
-from .runner import CartpoleRunner
 
 
 def timed_ms(work: Callable[[], object], device: str, repeats: int) -> float:
@@ -42,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.manual_seed(cfg.env.seed)
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
-    env = RslRlVecEnv(CartpoleEnv(cfg.env))
+    env = RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env))
     runner = CartpoleRunner(env, cfg, None)
     device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg
     runner.learn(3)

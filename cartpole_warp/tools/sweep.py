@@ -1,22 +1,25 @@
 """Time to a solved policy, over training settings and seeds: each run is ``python -m cartpole_warp.train`` (optionally
 followed by ``play --headless`` on its final policy), and the table says what each setting costs.
 
-    python -m cartpole_warp.rl.sweep --device cpu --seeds 0 1 2 3 4 \\
+    python -m cartpole_warp.tools.sweep --device cpu --seeds 0 1 2 3 4 \\
         --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
+    python -m cartpole_warp.tools.sweep --task cartpole-swingup --device cuda:0 --play
 
 A variant is train.py's flags written ``name=value`` (or ``name`` for a switch such as ``agent.no-cuda-graph``)
 without the dashes, several in one quoted string; a list value is comma-separated (``agent.actor.hidden-dims=64,64``).
 
 It prints two markdown tables. Per seed, as each run ends: the iteration and training seconds at which it was
 solved, the milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s
-including PPO, and with ``--play`` the fraction of play.py's episodes that reached the time limit. Per variant, at the
-end: the same over the seeds (iterations and seconds as median and worst, play as the worst seed's). A failed run's
-output goes to stderr, and it counts as not solved.
+including PPO, and with ``--play`` the task's play metric (``Task.play_metric``: the fraction of episodes that reached
+the time limit for the balance task, the reward per step of full episodes for the swing-up) of play.py's final policy.
+Per variant, at the end: the same over the seeds (iterations and seconds as median and worst, play as the worst
+seed's). A failed run's output goes to stderr, and it counts as not solved.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import shlex
 import statistics
 import subprocess
@@ -27,14 +30,17 @@ from pathlib import Path
 
 import tyro
 
-from .runs import PLAY_DIR, SUMMARY_FILE, latest_run
+from .. import tasks
+from ..rl.runs import PLAY_DIR, SUMMARY_FILE
 
 
 @dataclass
 class SweepArgs:
-    variants: list[str] = field(default_factory=lambda: ["config=default"])
+    task: str = tasks.DEFAULT_TASK
+    """The registered task every run trains."""
+    variants: list[str] = field(default_factory=lambda: [""])
     """Settings to measure: train.py flags as name=value pairs (or name for a switch), several in one quoted string
-    per variant."""
+    per variant ('': the task's defaults)."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
     """Seeds to run every variant with."""
     device: str = "cpu"
@@ -61,7 +67,8 @@ class RunResult:
     env_steps_per_s: int | None
     collection_ms: float | None = None
     learning_ms: float | None = None
-    time_limit_fraction: float | None = None
+    play_value: float | None = None
+    """The task's play metric of play.py's run of the final policy."""
     error: str | None = None
     """The failed command's last output lines (the sweep goes on with the next run)."""
 
@@ -77,7 +84,7 @@ def variant_flags(variant: str) -> list[str]:
 
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     """One training run (and play) in a subprocess; its summary.json is the result."""
-    flags = [*variant_flags(variant), "--seed", str(seed), "--device", args.device, "--num-envs", str(args.num_envs),
+    flags = ["--task", args.task, *variant_flags(variant), "--seed", str(seed), "--device", args.device, "--num-envs", str(args.num_envs),
              *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
              "--logger", "none", "--log-dir", str(log_dir),
              *(["--stop-when-solved"] if args.stop_when_solved else [])]
@@ -85,7 +92,7 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     if done.returncode != 0:
         return RunResult(variant, seed, None, None, None,
                          error=f"train.py {' '.join(flags)} failed:\n{done.stdout[-1000:]}\n{done.stderr[-2000:]}")
-    run_dir = latest_run(log_dir, "cartpole")
+    run_dir = Path(re.search(r"^run folder: (\S+)", done.stdout, re.MULTILINE).group(1))
     summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     solved = summary["solved_at"] or {}
     result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"],
@@ -97,13 +104,14 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
             result.error = f"play.py on {run_dir} failed:\n{played.stderr[-2000:]}"
             return result
         record = json.loads((run_dir / PLAY_DIR / "result.json").read_text())
-        result.time_limit_fraction = record["time_limit_fraction"]
+        result.play_value = record["play_value"]
     return result
 
 
-SEED_TABLE_HEADER = ("| train.py flags | seed | solved at iteration | seconds to solved | "
-                     "ms per iteration: collection + learning | env-steps/s | play: reached time limit |\n"
-                     "|---|---|---|---|---|---|---|")
+def seed_table_header(task: str) -> str:
+    """Markdown header of the per-seed table."""
+    return ("| train.py flags | seed | solved at iteration | seconds to solved | ms per iteration: collection + "
+            f"learning | env-steps/s | play: {tasks.get(task).play_metric} |\n|---|---|---|---|---|---|---|")
 
 
 def _markdown_row(cells: list[str]) -> str:
@@ -111,7 +119,7 @@ def _markdown_row(cells: list[str]) -> str:
 
 
 def _flags_cell(variant: str) -> str:
-    return f"`{' '.join(variant_flags(variant))}`"
+    return f"`{' '.join(variant_flags(variant))}`" if variant.strip() else "(default)"
 
 
 def _ms_cell(collection_ms: float, learning_ms: float) -> str:
@@ -129,14 +137,14 @@ def seed_row(result: RunResult) -> str:
                   f"{result.solved_time_s:.1f}" if solved else "-",
                   _ms_cell(result.collection_ms, result.learning_ms) if result.collection_ms is not None else "-",
                   f"{result.env_steps_per_s:,}" if result.env_steps_per_s else "-",
-                  f"{result.time_limit_fraction:.1%}" if result.time_limit_fraction is not None else "-"]
+                  f"{result.play_value:.3f}" if result.play_value is not None else "-"]
     return _markdown_row(cells)
 
 
-def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
+def table(results: list[RunResult], variants: list[str], seeds: int, task: str) -> str:
     """Markdown table: one row per variant (a failed run counts as not solved, and says so)."""
     rows = ["| train.py flags | solved | iterations to solved (median / max) | seconds to solved (median / max) | "
-            "ms per iteration: collection + learning | env-steps/s | play: reached time limit (min) |",
+            f"ms per iteration: collection + learning | env-steps/s | play: {tasks.get(task).play_metric} (min) |",
             "|---|---|---|---|---|---|---|"]
     for variant in variants:
         mine = [r for r in results if r.variant == variant]
@@ -144,7 +152,7 @@ def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
         failed = sum(r.error is not None for r in mine)
         speeds = [r.env_steps_per_s for r in mine if r.env_steps_per_s]
         timed = [r for r in mine if r.collection_ms is not None]
-        played = [r.time_limit_fraction for r in mine if r.time_limit_fraction is not None]
+        played = [r.play_value for r in mine if r.play_value is not None]
         cells = [_flags_cell(variant), f"{len(solved)}/{seeds}" + (f" ({failed} failed)" if failed else "")]
         if solved:
             iterations, times = [r.solved_iterations for r in solved], [r.solved_time_s for r in solved]
@@ -154,7 +162,7 @@ def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
             cells += ["-", "-"]
         cells.append(_ms_cell(statistics.median(r.collection_ms for r in timed),
                               statistics.median(r.learning_ms for r in timed)) if timed else "-")
-        cells += [f"{statistics.median(speeds):,.0f}" if speeds else "-", f"{min(played):.1%}" if played else "-"]
+        cells += [f"{statistics.median(speeds):,.0f}" if speeds else "-", f"{min(played):.3f}" if played else "-"]
         rows.append(_markdown_row(cells))
     return "\n".join(rows)
 
@@ -162,7 +170,8 @@ def table(results: list[RunResult], variants: list[str], seeds: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     args = tyro.cli(SweepArgs, args=sys.argv[1:] if argv is None else argv, description=__doc__)
     results = []
-    print(SEED_TABLE_HEADER, flush=True)
+    tasks.get(args.task)
+    print(seed_table_header(args.task), flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)
         for number, variant in enumerate(args.variants):
@@ -173,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(result.error, file=sys.stderr, flush=True)
                 print(seed_row(result), flush=True)
     print()
-    print(table(results, args.variants, len(args.seeds)))
+    print(table(results, args.variants, len(args.seeds), args.task))
     return 1 if any(r.error for r in results) else 0
 
 

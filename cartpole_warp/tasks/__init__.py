@@ -1,0 +1,126 @@
+"""The task registry: every module in this folder that calls ``register(Task(...))`` is a task, found by name.
+
+    import cartpole_warp
+    cartpole_warp.tasks.names()                       # ['cartpole-balance', 'cartpole-swingup']
+    env = cartpole_warp.tasks.make("cartpole-swingup", num_envs=4096, device="cpu", seed=0)
+
+A task module (``balance.py``, ``swingup.py``) holds the task's spec docstring, its ``TaskConfig`` subclass, its Warp
+functions, its ``BatchedEnv`` subclass and one ``register(Task(...))`` call: adding a task is adding a module here
+(plus its stage and presets if it has them). Machinery reaches tasks only through this registry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import pkgutil
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..config import ConfigError, EnvConfig, from_dict, load_preset, merge, overrides_dict
+from ..env import BatchedEnv
+
+DEFAULT_TASK = "cartpole-balance"
+"""The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""
+
+
+@dataclass(frozen=True)
+class SolvedRule:
+    """When a task counts as solved, over the episodes that finished in one training iteration (or in a play)."""
+
+    min_reward_per_step: float
+    """Mean reward per step (episode return / episode length) at least this ..."""
+    min_length_fraction: float = 0.0
+    """... and a mean episode length at least this fraction of the time limit ..."""
+    full_episodes_only: bool = False
+    """... where True: the means over the episodes that ran the whole time limit (at least one must have)."""
+
+    def __call__(self, summary: Any, max_episode_length: int) -> bool:
+        """Whether ``summary`` (an ``evaluation.EpisodeSummary``) meets the rule."""
+        per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
+        if per_step is None or summary.mean_length is None:
+            return False
+        return (per_step >= self.min_reward_per_step
+                and summary.mean_length >= self.min_length_fraction * max_episode_length)
+
+    def describe(self, max_episode_length: int) -> str:
+        """The rule in words."""
+        episodes = "full-length episodes" if self.full_episodes_only else "finished episodes"
+        words = f"mean reward per step >= {self.min_reward_per_step:g} over one iteration's {episodes}"
+        if self.min_length_fraction:
+            words += (f" and mean episode length >= {self.min_length_fraction:.0%} of the {max_episode_length}-step "
+                      "time limit")
+        return words
+
+
+@dataclass(frozen=True)
+class Task:
+    """What the machinery needs to know of a task."""
+
+    name: str
+    """Registry name, e.g. 'cartpole-swingup'; also the default experiment name of its runs."""
+    env_class: type[BatchedEnv]
+    """The env (its docstring is the task's spec; its config class, sizes, stage and joint roles)."""
+    solved: SolvedRule
+    play_metric: str
+    """The ``evaluation.EpisodeSummary`` field that play.py reports first and the sweep tabulates."""
+    summary: str
+    """One line for ``--help`` and the README's table."""
+    defaults: dict = field(default_factory=dict)
+    """Nested overrides of the training config (``env``, ``agent`` sections) that make this task's defaults, applied
+    before a preset and the flags."""
+    gym_ids: dict[str, str | None] = field(default_factory=dict)
+    """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
+
+
+_TASKS: dict[str, Task] = {}
+
+
+def register(task: Task) -> Task:
+    """Add ``task`` to the registry (a task module calls this once); ValueError if its name is taken."""
+    if task.name in _TASKS and _TASKS[task.name] != task:
+        raise ValueError(f"task {task.name!r} is already registered")
+    _TASKS[task.name] = task
+    return task
+
+
+def _discover():
+    for module in pkgutil.iter_modules(__path__):
+        importlib.import_module(f"{__name__}.{module.name}")
+
+
+def names() -> list[str]:
+    """The registered task names, the default first."""
+    _discover()
+    return sorted(_TASKS, key=lambda name: (name != DEFAULT_TASK, name))
+
+
+def get(name: str) -> Task:
+    """The task called ``name``; ConfigError listing the known tasks if there is none."""
+    if name not in names():
+        raise ConfigError(f"unknown task {name!r}; known tasks: {', '.join(names())}")
+    return _TASKS[name]
+
+
+def env_config(name: str, preset: str | None = None, **overrides) -> EnvConfig:
+    """The env config of task ``name``: the dataclass defaults, the task's defaults, the preset's ``env`` section,
+    then nested keyword overrides (``num_envs=64, sim={"solver": "mujoco"}, task={...}``; None values ignored)."""
+    task = get(name)
+    cls = EnvConfig[task.env_class.config_class]
+    data = merge(dataclasses.asdict(cls(task=task.env_class.config_class())), task.defaults.get("env", {}))
+    if preset is not None:
+        data = merge(data, overrides_dict(load_preset(preset).get("env", {}), f"preset {preset!r}: env"))
+    data = merge(data, overrides_dict({k: v for k, v in overrides.items() if v is not None}, "overrides"))
+    return from_dict(cls, data, f"task {name!r}" + (f", preset {preset!r}" if preset else ""))
+
+
+def make(name: str, num_envs: int | None = None, device: str | None = None, seed: int | None = None,
+         preset: str | None = None, **overrides) -> BatchedEnv:
+    """Build task ``name``'s env from its defaults, a preset (a name under configs/ or a YAML path) and nested
+    overrides of the env config: ``sim={"solver": "mujoco"}``, ``task={"episode_length_s": 5}`` (``task`` here means
+    the task's settings; the task itself is ``name``)."""
+    cfg = env_config(name, preset, num_envs=num_envs, device=device, seed=seed, **overrides)
+    return get(name).env_class(cfg)
+
+
+__all__ = ["DEFAULT_TASK", "SolvedRule", "Task", "env_config", "get", "make", "names", "register"]

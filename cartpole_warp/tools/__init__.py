@@ -1,0 +1,1 @@
+"""Programs that measure (bench, sweep, timing); never imported by the library."""
