@@ -214,7 +214,7 @@ def merge(base: dict, overrides: dict) -> dict:
 
 def overrides_dict(overrides: Any, where: str) -> dict:
     """``overrides`` checked to be a mapping (ConfigError naming ``where`` otherwise)."""
-    require(isinstance(overrides, dict), f"{where}: expected a mapping, got {overrides!r}")
+    require(isinstance(overrides, dict), f"{where} expected a mapping, got {overrides!r}")
     return overrides
 
 
@@ -234,4 +234,4 @@ def load_preset(preset: str) -> dict:
         data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as err:
         raise ConfigError(f"cannot parse {path}: {err}") from None
-    return overrides_dict(data, str(path))
+    return overrides_dict(data, f"{path}: expected a mapping at the top level;")

@@ -28,12 +28,14 @@ def repo() -> Path:
 
 @pytest.fixture
 def make():
-    """``make(num_envs=64, seed=0, preset="default", **overrides)``: an env on the test device from a preset with
-    nested overrides (sim={...}, task={...}); every env made is closed after the test."""
+    """``make(num_envs=64, seed=0, preset="default", task_name=None, **overrides)``: an env of task ``task_name`` (a
+    registered name; None: the default task, cartpole-balance) on the test device from a preset with nested overrides
+    (sim={...}, task={...}: ``task`` is the task's settings); every env made is closed after the test."""
     envs = []
 
-    def factory(num_envs=64, seed=0, preset="default", **overrides):
-        env = cartpole_warp.make_env(num_envs=num_envs, device=DEVICE, seed=seed, preset=preset, **overrides)
+    def factory(num_envs=64, seed=0, preset="default", task_name=None, **overrides):
+        env = cartpole_warp.tasks.make(task_name or cartpole_warp.tasks.DEFAULT_TASK, num_envs=num_envs,
+                                       device=DEVICE, seed=seed, preset=preset, **overrides)
         envs.append(env)
         return env
 

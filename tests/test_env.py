@@ -1,71 +1,124 @@
-"""Batched env behaviour: autoreset, truncation, capture, seeding, sizes, bad input."""
+"""Batched env machinery, for every registered task: autoreset, truncation, capture, sharding, seeding, sizes, bad
+input, set_state, close; and the balance task's own failures, config checks and stage errors."""
 
 import math
 
+import newton
 import pytest
 import torch
 from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
-from cartpole_warp.config import MAX_EPISODE_LENGTH, data_path
+from cartpole_warp.config import MAX_EPISODE_LENGTH
+from cartpole_warp.env import COMMON_ENDS
+from cartpole_warp.files import data_path
 from cartpole_warp.runtime import shard_bounds
-from cartpole_warp.scene import pick_joint
+from cartpole_warp.scene import JointRole, pick_joint
 
-SAFE = torch.tensor([0.2, 0.1, 0.05, -0.1])
+TASKS = cartpole_warp.tasks.names()
+SHORT_EPISODES = {"episode_length_s": 0.5}
+"""A time limit of 25-30 env steps: every task's rollouts end episodes (the swing-up never terminates)."""
 
 
-def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs(make, random_actions, device):
+def safe_states(env, n):
+    """(n, 2 x joint roles) small, distinct states near the origin (within every task's limits)."""
+    width = 2 * len(env.joint_roles)
+    offsets = torch.tensor([0.2, 0.1, 0.05, -0.1] * (width // 4 + 1))[:width]
+    return (offsets + 0.01 * torch.arange(n).unsqueeze(1)).to(env.device)
+
+
+def zero_actions(env):
+    return torch.zeros(env.num_envs, env.num_actions, device=env.device)
+
+
+def rollout(env, actions_sequence):
+    """(steps, N, 3 + 2 x num_obs): reward, terminated, truncated, obs, final_obs of each step after a reset."""
+    env.reset()
+    trajectory = []
+    for actions in actions_sequence:
+        obs, reward, terminated, truncated, info = env.step(actions)
+        trajectory.append(torch.cat([reward[:, None], terminated[:, None], truncated[:, None], obs,
+                                     info["final_obs"]], dim=1).cpu())
+    return torch.stack(trajectory)
+
+
+def episodes_ended(trajectory) -> int:
+    return int(trajectory[..., 1:3].sum())
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_every_task_names_its_end_reasons(task, make):
+    env = make(2, task_name=task)
+    assert env.end_reasons[:3] == COMMON_ENDS == ("running", "time_limit", "nonfinite_state")
+    assert env.end_reasons[3:] == type(env).task_ends
+    assert isinstance(env, cartpole_warp.BatchedEnv) and isinstance(env, cartpole_warp.tasks.get(task).env_class)
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs(task, make, random_actions, device):
+    """Envs 0-9 reach the time limit on this step (their counters set one short of it), the others run on: only the
+    ended envs are reset (to the next draw of their RNG), and ``final_obs`` is the observation they ended at."""
     n = 64
     ending = torch.arange(n) < 10
-    states = SAFE.repeat(n, 1) + 0.01 * torch.arange(n).unsqueeze(1)
-    out_of_range = states.clone()
-    out_of_range[ending, 0] = 3.5
-    reference, env = make(n), make(n)
-    reference.set_state(states.to(device))
-    env.set_state(out_of_range.to(device))
+    reference, env, fresh = make(n, task_name=task), make(n, task_name=task), make(n, task_name=task)
+    states = safe_states(env, n)
+    reference.set_state(states)
+    env.set_state(states)
+    env.episode_length_buf = torch.where(ending, env.max_episode_length - 1, 0).int().to(device)
     actions = random_actions(n, 1)[0]
-    ref_obs, *_ = reference.step(actions)
+    ref_obs, ref_reward, *_ = reference.step(actions)
     obs, reward, terminated, truncated, info = env.step(actions)
-    obs, terminated, final = obs.cpu(), terminated.cpu(), info["final_obs"].cpu()
+    obs, truncated, final, ref_obs = obs.cpu(), truncated.cpu(), info["final_obs"].cpu(), ref_obs.cpu()
+    next_reset = fresh.reset()[0].cpu()  # each env's second draw, as the autoreset's (the first went to the start)
 
-    assert torch.equal(terminated, ending) and not truncated.any()
-    assert torch.equal(obs[~ending], ref_obs.cpu()[~ending]), "envs that did not end must be untouched"
+    assert torch.equal(truncated, ending) and not terminated.any()
+    assert torch.equal(reward, ref_reward), "the ending step is rewarded like any other"
+    assert torch.equal(obs[~ending], ref_obs[~ending]), "envs that did not end must be untouched"
     assert torch.equal(final[~ending], obs[~ending])
-    assert (final[ending, 0] > 3.0).all(), "final_obs is the observation before the reset"
-    assert (obs[ending, 0].abs() <= 1.0).all(), "ended envs come back reset"
-    assert (reward.cpu()[ending] == -2.0).all()
+    assert torch.equal(final[ending], ref_obs[ending]), "final_obs is the observation before the reset"
+    assert torch.equal(obs[ending], next_reset[ending]), "ended envs come back reset"
+    assert not torch.equal(obs[ending], ref_obs[ending])
     assert (env.episode_length_buf.cpu()[ending] == 0).all()
     assert (env.episode_length_buf.cpu()[~ending] == 1).all()
-    assert (info["end_reason"].cpu()[ending] == 1).all()
+    assert (info["end_reason"].cpu()[ending] == env.end_reasons.index("time_limit")).all()
+    assert (info["episode_length"].cpu()[ending] == 1).all(), "steps really run since set_state"
 
 
-def test_time_outs_are_truncations_not_terminations(make, device):
-    env = make(16, task={"episode_length_s": 0.1})
-    assert env.max_episode_length == math.ceil(0.1 / env.env_dt)
-    env.set_state(torch.zeros(16, 4, device=device))
-    zero = torch.zeros(16, 1, device=device)
+@pytest.mark.parametrize("task", TASKS)
+def test_time_outs_are_truncations_not_terminations(task, make, device):
+    env = make(16, task_name=task, task={"episode_length_s": 0.1})
+    assert env.max_episode_length == math.ceil(0.1 / env.env_dt - 1e-9)
+    start = env.set_state(torch.zeros(16, 2 * len(env.joint_roles), device=device))  # at rest, upright: it stays
+    total = torch.zeros(16)
     for step in range(1, env.max_episode_length + 1):
-        obs, reward, terminated, truncated, info = env.step(zero)
+        obs, reward, terminated, truncated, info = env.step(zero_actions(env))
+        total += reward.cpu()
         assert not terminated.any()
-        assert truncated.all() == (step == env.max_episode_length)
-    assert (info["end_reason"].cpu() == 3).all()
+        # all(), not any(), at the limit; before it, no env may truncate
+        assert torch.equal(truncated.cpu(), torch.full((16,), step == env.max_episode_length)), f"step {step}"
+    assert (info["end_reason"].cpu() == env.end_reasons.index("time_limit")).all()
     assert (info["episode_length"].cpu() == env.max_episode_length).all()
-    torch.testing.assert_close(info["episode_return"].cpu(), torch.full((16,), float(env.max_episode_length)))
-    assert (info["final_obs"].cpu() == 0).all() and (obs.cpu()[:, 0].abs() > 0).any()
+    torch.testing.assert_close(info["episode_return"].cpu(), total)
+    assert (total > 0).all()
+    torch.testing.assert_close(info["final_obs"], start, rtol=0, atol=1e-6)
+    assert (obs.cpu() - start.cpu()).abs().amax(dim=1).gt(0).all(), "every env starts over from a random state"
 
 
-def test_episode_length_buf_assignment_sets_the_counters(make, device):
-    env = make(8, task={"episode_length_s": 1.0})
-    env.set_state(torch.zeros(8, 4, device=device))
+@pytest.mark.parametrize("task", TASKS)
+def test_episode_length_buf_assignment_sets_the_counters(task, make, device):
+    env = make(8, task_name=task, task={"episode_length_s": 1.0})
+    env.set_state(safe_states(env, 8))
     env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=device)
-    _, _, terminated, truncated, info = env.step(torch.zeros(8, 1, device=device))
+    _, _, terminated, truncated, info = env.step(zero_actions(env))
     assert truncated.all() and not terminated.any()
     assert (info["episode_length"] == 1).all(), "the reported length is the steps really run"
+    assert (env.episode_length_buf == 0).all()
 
 
-def test_episode_statistics_sum_the_rewards(make, random_actions):
+@pytest.mark.parametrize("task", TASKS)
+def test_episode_statistics_sum_the_rewards(task, make, random_actions):
     n, steps = 32, 150
-    env = make(n, seed=5)
+    env = make(n, seed=5, task_name=task, task={"episode_length_s": 1.0})
     env.reset()
     running = torch.zeros(n)
     lengths = torch.zeros(n, dtype=torch.int32)
@@ -80,39 +133,32 @@ def test_episode_statistics_sum_the_rewards(make, random_actions):
             assert torch.equal(info["episode_length"].cpu()[done], lengths[done])
             checked += int(done.sum())
             running[done], lengths[done] = 0.0, 0
-    assert checked >= n
-
-
-def rollout(env, actions_sequence):
-    env.reset()
-    trajectory = []
-    for actions in actions_sequence:
-        obs, reward, terminated, truncated, info = env.step(actions)
-        trajectory.append(torch.cat([obs, reward[:, None], terminated[:, None], truncated[:, None],
-                                     info["final_obs"]], dim=1).cpu())
-    return torch.stack(trajectory)
+    assert checked >= 2 * n
 
 
 @pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
-def test_captured_step_equals_uncaptured(solver, make, random_actions):
-    actions = random_actions(64, 120)
-    captured = rollout(make(64, sim={"solver": solver, "capture": "on"}), actions)
-    plain = rollout(make(64, sim={"solver": solver, "capture": "off"}), actions)
-    assert captured[..., 5].sum() > 0, "the rollout must include terminations"
+@pytest.mark.parametrize("task", TASKS)
+def test_captured_step_equals_uncaptured(task, solver, make, random_actions):
+    actions = random_actions(64, 60)
+    captured = rollout(make(64, task_name=task, sim={"solver": solver, "capture": "on"}, task=SHORT_EPISODES), actions)
+    plain = rollout(make(64, task_name=task, sim={"solver": solver, "capture": "off"}, task=SHORT_EPISODES), actions)
+    assert episodes_ended(captured) >= 64, "the rollout must include resets"
     torch.testing.assert_close(captured, plain, rtol=0, atol=1e-6)
 
 
-def test_sharded_threads_give_the_single_scene_trajectory(make, random_actions, device):
+@pytest.mark.parametrize("task", TASKS)
+def test_sharded_threads_give_the_single_scene_trajectory(task, make, random_actions, device):
     """On the CPU 1024 envs split into two scenes stepped in two threads; the split must not change results."""
-    sharded = make(1024, sim={"cpu_threads": 2})
+    sharded = make(1024, task_name=task, sim={"cpu_threads": 2}, task=SHORT_EPISODES)
     assert len(sharded.shards) == (2 if device == "cpu" else 1)
-    single = make(1024, sim={"cpu_threads": 1})
+    single = make(1024, task_name=task, sim={"cpu_threads": 1}, task=SHORT_EPISODES)
     assert len(single.shards) == 1
-    actions = random_actions(1024, 80)
+    actions = random_actions(1024, 40)
     reference = rollout(single, actions)
-    assert reference[..., 5].sum() > 0, "the rollout must include terminations"
+    assert episodes_ended(reference) >= 1024, "the rollout must include resets"
     assert torch.equal(rollout(sharded, actions), reference)
-    assert torch.equal(rollout(make(1024, sim={"cpu_threads": 2, "capture": "off"}), actions), reference)
+    assert torch.equal(rollout(make(1024, task_name=task, sim={"cpu_threads": 2, "capture": "off"},
+                                    task=SHORT_EPISODES), actions), reference)
 
 
 def test_shard_bounds_cover_the_envs(make):
@@ -125,50 +171,63 @@ def test_shard_bounds_cover_the_envs(make):
         assert len(make(1024, sim={"solver": "mujoco", "cpu_threads": 2}).shards) == 1, "MuJoCo stays in one scene"
 
 
-def test_same_seed_same_trajectory_other_seed_differs(make, random_actions):
-    actions = random_actions(64, 100)
-    first = rollout(make(64, seed=11), actions)
-    again = rollout(make(64, seed=11), actions)
-    other = rollout(make(64, seed=12), actions)
+@pytest.mark.parametrize("task", TASKS)
+def test_same_seed_same_trajectory_other_seed_differs(task, make, random_actions):
+    actions = random_actions(64, 60)
+    first = rollout(make(64, seed=11, task_name=task, task=SHORT_EPISODES), actions)
+    again = rollout(make(64, seed=11, task_name=task, task=SHORT_EPISODES), actions)
+    other = rollout(make(64, seed=12, task_name=task, task=SHORT_EPISODES), actions)
     assert torch.equal(first, again)
     assert not torch.allclose(first, other)
 
 
-def test_reset_with_seed_restarts_the_random_stream(make):
-    env = make(64, seed=0)
+@pytest.mark.parametrize("task", TASKS)
+def test_reset_with_seed_restarts_the_random_stream(task, make):
+    env = make(64, seed=0, task_name=task)
     first = env.reset(seed=7)[0]
-    env.reset()
+    second = env.reset()[0]
+    assert not torch.equal(second, first)
     assert torch.equal(env.reset(seed=7)[0], first)
 
 
 @pytest.mark.parametrize("num_envs", [1, 64, 4096])
-def test_sizes(num_envs, make, random_actions, device):
-    env = make(num_envs)
+@pytest.mark.parametrize("task", TASKS)
+def test_sizes(task, num_envs, make, random_actions, device):
+    env = make(num_envs, task_name=task)
+    assert env.num_obs == cartpole_warp.tasks.get(task).env_class.num_obs and env.num_actions == 1
     obs, info = env.reset()
-    assert obs.shape == (num_envs, 4) and obs.dtype == torch.float32 and str(obs.device) == env.device
+    assert obs.shape == (num_envs, env.num_obs) and obs.dtype == torch.float32 and str(obs.device) == env.device
     for actions in random_actions(num_envs, 30):
         obs, reward, terminated, truncated, info = env.step(actions)
+    assert obs.shape == info["final_obs"].shape == (num_envs, env.num_obs)
     assert reward.shape == terminated.shape == truncated.shape == (num_envs,)
-    assert terminated.dtype == torch.bool and info["final_obs"].shape == (num_envs, 4)
+    assert reward.dtype == torch.float32 and terminated.dtype == truncated.dtype == torch.bool
+    for key in ("episode_return", "episode_length", "end_reason"):
+        assert info[key].shape == (num_envs,)
+    assert info["end_reason"].dtype == info["episode_length"].dtype == torch.int32
     assert torch.isfinite(obs).all()
     assert env.episode_length_buf.shape == (num_envs,)
+    assert env.get_observations().shape == (num_envs, env.num_obs)
     # (N,) actions are accepted as well as (N, 1)
     env.step(torch.zeros(num_envs, device=device))
 
 
-@pytest.mark.parametrize(
-    "actions, message",
-    [
-        (torch.zeros(8, 2), "shape"),
-        (torch.zeros(4, 1), "shape"),
-        (torch.zeros(8, 1, dtype=torch.float64), "dtype"),
-        (torch.zeros(8, 1, dtype=torch.int32), "dtype"),
-        (torch.zeros(8, 1, device="meta"), "device"),
-        ([0.0] * 8, "list"),
-    ],
-)
-def test_bad_actions_raise_value_error(actions, message, make, device):
-    env = make(8)
+BAD_ACTIONS = {
+    "extra column": (lambda n, a: torch.zeros(n, a + 1), "shape"),
+    "too few rows": (lambda n, a: torch.zeros(n // 2, a), "shape"),
+    "float64": (lambda n, a: torch.zeros(n, a, dtype=torch.float64), "dtype"),
+    "int32": (lambda n, a: torch.zeros(n, a, dtype=torch.int32), "dtype"),
+    "other device": (lambda n, a: torch.zeros(n, a, device="meta"), "device"),
+    "list": (lambda n, a: [0.0] * (n * a), "list"),
+}
+
+
+@pytest.mark.parametrize("kind", BAD_ACTIONS)
+@pytest.mark.parametrize("task", TASKS)
+def test_bad_actions_raise_value_error(task, kind, make, device):
+    env = make(8, task_name=task)
+    build, message = BAD_ACTIONS[kind]
+    actions = build(8, env.num_actions)
     if isinstance(actions, torch.Tensor) and actions.device.type != "meta":
         actions = actions.to(device)
     with pytest.raises(ValueError, match=message) as err:
@@ -176,48 +235,77 @@ def test_bad_actions_raise_value_error(actions, message, make, device):
     assert "expected" in str(err.value)
 
 
-def test_nonfinite_actions_are_applied_as_zero_and_counted(make, device):
-    env, reference = make(8), make(8)
-    states = SAFE.repeat(8, 1).to(device)
+@pytest.mark.parametrize("task", TASKS)
+def test_nonfinite_actions_are_applied_as_zero_and_counted(task, make, device):
+    env, reference = make(8, task_name=task), make(8, task_name=task)
+    states = safe_states(env, 8)
     env.set_state(states)
     reference.set_state(states)
     bad = torch.tensor([[math.nan], [math.inf], [-math.inf], [0.0], [0.0], [0.0], [0.0], [0.0]], device=device)
-    obs, *_, info = env.step(bad)
-    ref_obs, *_ = reference.step(torch.zeros(8, 1, device=device))
-    assert torch.equal(obs, ref_obs)
+    obs, reward, *_, info = env.step(bad)
+    ref_obs, ref_reward, *_ = reference.step(zero_actions(reference))
+    assert torch.equal(obs, ref_obs) and torch.equal(reward, ref_reward)
     assert int(info["nonfinite_actions"]) == 3
+    _, _, *_, info = env.step(bad)
+    assert int(info["nonfinite_actions"]) == 6, "a running total"
 
 
-def test_nonfinite_physics_state_is_reset_and_counted(make, device):
-    env = make(8)
-    env.set_state(SAFE.repeat(8, 1).to(device))
-    last_finite = env.get_observations()
+@pytest.mark.parametrize("task", TASKS)
+def test_nonfinite_physics_state_is_reset_and_counted(task, make, device):
+    env = make(8, task_name=task)
+    last_finite = env.set_state(safe_states(env, 8))
     qd = env.scene.state_0.joint_qd
     values = qd.numpy()
-    values[3 * env.scene.dofs_per_env + env.scene.pole_dof] = math.nan
+    values[3 * env.scene.dofs_per_env + env.scene.role_dofs[-1]] = math.nan
     qd.assign(values)
-    obs, reward, terminated, truncated, info = env.step(torch.zeros(8, 1, device=device))
+    obs, reward, terminated, truncated, info = env.step(zero_actions(env))
     assert torch.isfinite(obs).all() and torch.isfinite(info["final_obs"]).all()
     assert int(info["nonfinite_states"]) == 1
     assert terminated.cpu().tolist() == [False, False, False, True, False, False, False, False]
-    assert int(info["end_reason"][3]) == 4 and float(reward[3]) == -2.0
-    assert torch.equal(info["final_obs"][3], last_finite[3])
-    obs, *_ = env.step(torch.zeros(8, 1, device=device))
-    assert torch.isfinite(obs).all()
+    assert not truncated.any()
+    assert env.end_reasons[int(info["end_reason"][3])] == "nonfinite_state"
+    assert float(reward[3]) == 0.0 and float(info["episode_return"][3]) == 0.0
+    assert int(info["episode_length"][3]) == 1
+    assert torch.equal(info["final_obs"][3], last_finite[3]), "the last finite observation"
+    assert not torch.equal(obs[3], last_finite[3]) and int(env.episode_length_buf[3]) == 0, "env 3 starts over"
+    obs, *_, info = env.step(zero_actions(env))
+    assert torch.isfinite(obs).all() and int(info["nonfinite_states"]) == 1
 
 
-def test_set_state_validates_and_masks(make, device):
-    env = make(4)
+@pytest.mark.parametrize("task", TASKS)
+def test_set_state_validates_and_masks(task, make, device):
+    env, everywhere = make(4, task_name=task), make(4, task_name=task)
+    width = 2 * len(env.joint_roles)
     env.reset()
+    env.step(zero_actions(env))
     before = env.get_observations()
-    states = torch.arange(16, dtype=torch.float32, device=device).reshape(4, 4) / 100
+    states = torch.arange(4 * width, dtype=torch.float32, device=device).reshape(4, width) / 100
     mask = torch.tensor([True, False, True, False], device=device)
     obs = env.set_state(states, mask)
-    assert torch.equal(obs[mask], states[mask]) and torch.equal(obs[~mask], before[~mask])
+    full = everywhere.set_state(states)
+    assert torch.equal(obs[mask], full[mask]) and torch.equal(obs[~mask], before[~mask])
+    assert not torch.equal(obs[mask], before[mask])
+    assert torch.equal(env.get_observations(), obs)
+    assert env.episode_length_buf.cpu().tolist() == [0, 1, 0, 1], "set_state starts new episodes where masked"
+    # the next step starts from the set states: as in the env where every state was set
+    masked_next, *_ = env.step(zero_actions(env))
+    full_next, *_ = everywhere.step(zero_actions(everywhere))
+    assert torch.equal(masked_next[mask], full_next[mask])
     with pytest.raises(ValueError, match="finite"):
-        env.set_state(torch.full((4, 4), math.nan, device=device))
+        env.set_state(torch.full((4, width), math.nan, device=device))
     with pytest.raises(ValueError, match="shape"):
-        env.set_state(torch.zeros(4, 3, device=device))
+        env.set_state(torch.zeros(4, width - 1, device=device))
+    with pytest.raises(ValueError, match="dtype"):
+        env.set_state(states, mask.int())
+    with pytest.raises(ValueError, match="shape"):
+        env.set_state(states, mask[:3])
+
+
+def test_set_state_of_the_balance_task_is_its_observation(make, device):
+    """Balance observes the state itself: [cart_pos, cart_vel, pole_angle, pole_vel]."""
+    env = make(4)
+    states = torch.arange(16, dtype=torch.float32, device=device).reshape(4, 4) / 100
+    assert torch.equal(env.set_state(states), states)
 
 
 def write_stage_with_renamed_joint(path):
@@ -251,13 +339,21 @@ def write_stage_with_renamed_joint(path):
         ({"task": {"episode_length_s": math.inf}}, "task.episode_length_s: Input should be a finite number"),
         ({"task": {"episode_length_s": 3.6e7}}, "2,160,000,000 env steps; the step counters hold at most"),
         ({"seed": -1}, "seed: Input should be greater than or equal to 0"),
-        ({"sim": {"cart_joint": ""}}, "sim.cart_joint: String should have at least 1 character"),
+        ({"task": {"cart_joint": ""}}, "task.cart_joint: String should have at least 1 character"),
+        ({"sim": {"cart_joint": "cartJoint"}}, "unknown config key 'sim.cart_joint'"),
     ],
 )
 def test_invalid_config_names_the_problem(kwargs, message, device):
     kwargs = {"num_envs": 4, "device": device, **kwargs}
     with pytest.raises(cartpole_warp.ConfigError, match=message):
         cartpole_warp.make_env(**kwargs)
+
+
+def test_unknown_task_and_other_tasks_keys_are_named(device):
+    with pytest.raises(cartpole_warp.ConfigError, match="unknown task 'no-such-task'; known tasks: cartpole-balance"):
+        cartpole_warp.tasks.make("no-such-task", num_envs=2, device=device)
+    with pytest.raises(cartpole_warp.ConfigError, match="unknown config key 'task.reset_dist_m'"):
+        cartpole_warp.tasks.make("cartpole-swingup", num_envs=2, device=device, task={"reset_dist_m": 3.0})
 
 
 def test_malformed_stage_and_missing_joint(tmp_path, device):
@@ -267,8 +363,11 @@ def test_malformed_stage_and_missing_joint(tmp_path, device):
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(garbage)})
     renamed = tmp_path / "no_pole_joint.usda"
     write_stage_with_renamed_joint(renamed)
-    with pytest.raises(cartpole_warp.StageError, match="no joint named 'poleJoint' for the pole joint"):
+    with pytest.raises(cartpole_warp.StageError,
+                       match=r"no joint named 'poleJoint' for the pole joint \(set task.pole_joint\)"):
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(renamed)})
+    with pytest.raises(cartpole_warp.StageError, match="no joint named 'hinge' for the pole joint"):
+        cartpole_warp.make_env(num_envs=2, device=device, task={"pole_joint": "hinge"})
 
 
 def edited_stage(path, edit):
@@ -319,42 +418,70 @@ def test_stages_the_task_cannot_use_are_named(tmp_path, device, edit, message):
 
 def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
     labels = ["/a/slide", "/b/slide", "/a/hinge"]
-    assert pick_joint(labels, "hinge", "pole joint") == 2
-    assert pick_joint(labels, "/b/slide", "cart joint") == 1
-    with pytest.raises(cartpole_warp.StageError, match="2 joints match 'slide' for the cart joint: /a/slide, /b/slide"):
-        pick_joint(labels, "slide", "cart joint")
-    with pytest.raises(cartpole_warp.StageError, match="no joint named 'wheel' .* sim.pole_joint"):
-        pick_joint(labels, "wheel", "pole joint")
+
+    def role(name, cart=False):
+        if cart:
+            return JointRole("cart", name, newton.JointType.PRISMATIC, "task.cart_joint")
+        return JointRole("pole", name, newton.JointType.REVOLUTE, "task.pole_joint")
+
+    assert pick_joint(labels, role("hinge")) == 2
+    assert pick_joint(labels, role("/b/slide", cart=True)) == 1
+    with pytest.raises(cartpole_warp.StageError, match="2 joints match 'slide' for the cart joint: /a/slide, /b/slide; "
+                                                       "give task.cart_joint the full prim path"):
+        pick_joint(labels, role("slide", cart=True))
+    with pytest.raises(cartpole_warp.StageError, match=r"no joint named 'wheel' for the pole joint \(set "
+                                                       r"task.pole_joint\); the stage's joints: /a/slide"):
+        pick_joint(labels, role("wheel"))
 
 
-def test_the_longest_time_limit_the_counters_hold_still_truncates(make, device):
-    env = make(2, task={"episode_length_s": MAX_EPISODE_LENGTH / 60})
+@pytest.mark.parametrize("task", TASKS)
+def test_the_longest_time_limit_the_counters_hold_still_truncates(task, make, device):
+    env_dt = cartpole_warp.tasks.env_config(task).sim.env_dt
+    env = make(2, task_name=task, task={"episode_length_s": (MAX_EPISODE_LENGTH - 0.5) * env_dt})
     assert env.max_episode_length == MAX_EPISODE_LENGTH
-    env.set_state(torch.zeros(2, 4, device=device))
-    _, _, _, truncated, _ = env.step(torch.zeros(2, 1, device=device))
+    env.set_state(torch.zeros(2, 2 * len(env.joint_roles), device=device))
+    _, _, _, truncated, _ = env.step(zero_actions(env))
     assert not truncated.any()
     env.episode_length_buf = torch.full((2,), MAX_EPISODE_LENGTH - 1, dtype=torch.int32, device=device)
-    _, _, terminated, truncated, info = env.step(torch.zeros(2, 1, device=device))
+    _, _, terminated, truncated, info = env.step(zero_actions(env))
     assert truncated.all() and not terminated.any() and (info["episode_length"] == 2).all()
 
 
-def test_a_finite_state_beyond_the_limits_ends_for_that_reason(make, device):
-    env = make(3)
-    env.set_state(torch.tensor([[1e6, 0.0, 0.0, 0.0], [-1e6, 0.0, 0.3, 0.0], [0.0, 0.0, 3.0, 0.0]], device=device))
-    _, reward, terminated, _, info = env.step(torch.zeros(3, 1, device=device))
-    assert info["end_reason"].tolist() == [1, 1, 2], "cart out of range, cart out of range, pole fell"
-    assert terminated.all() and (reward == -2.0).all() and torch.isfinite(info["final_obs"]).all()
+def test_balance_states_beyond_the_limits_end_for_that_reason(make, device):
+    """Balance only (the swing-up has no failures): a state beyond the limits ends with the failure reward and the
+    failure's reason, also when the physics then turns non-finite (reward 0); other envs run on."""
+    env = make(5)
+    assert env.end_reasons == ("running", "time_limit", "nonfinite_state", "cart_out_of_range", "pole_fell")
+    states = torch.tensor([[3.5, 0.0, 0.0, 0.0], [-3.5, 0.0, 0.3, 0.0], [0.0, 0.0, 3.0, 0.0], [3.5, 0.0, 0.0, 0.0],
+                           [0.2, 0.1, 0.05, -0.1]], device=device)
+    start = env.set_state(states)
+    qd = env.scene.state_0.joint_qd
+    values = qd.numpy()
+    values[3 * env.scene.dofs_per_env + env.scene.role_dofs[1]] = math.nan
+    qd.assign(values)
+    _, reward, terminated, truncated, info = env.step(zero_actions(env))
+    reasons = [env.end_reasons[code] for code in info["end_reason"].tolist()]
+    assert reasons == ["cart_out_of_range", "cart_out_of_range", "pole_fell", "cart_out_of_range", "running"]
+    assert terminated.tolist() == [True] * 4 + [False] and not truncated.any()
+    assert reward[:3].tolist() == [-2.0] * 3, "the failure reward"
+    assert float(reward[3]) == 0.0 and int(info["nonfinite_states"]) == 1, "a non-finite state is rewarded 0"
+    assert 0.0 < float(reward[4]) <= 1.0
+    assert torch.isfinite(info["final_obs"]).all() and torch.equal(info["final_obs"][3], start[3])
+    assert (env.get_observations()[:4].abs() <= torch.tensor([1.0, 0.5, math.pi / 8, math.pi / 4], device=device)).all()
 
 
-def test_close_stops_the_shard_threads(make, device):
+@pytest.mark.parametrize("task", TASKS)
+def test_close_stops_the_shard_threads(task, make, device):
     import threading
 
     def shard_threads():
         return {t for t in threading.enumerate() if t.name.startswith("cartpole-shard")}
 
     before = shard_threads()
-    env = make(1024, sim={"cpu_threads": 2})
-    env.step(torch.zeros(1024, 1, device=device))
-    assert len(shard_threads() - before) == (2 if device == "cpu" else 0)
+    env = make(1024, task_name=task, sim={"cpu_threads": 2})
+    for _ in range(5):
+        env.step(zero_actions(env))
+    # ThreadPoolExecutor starts a second thread only when the first is busy at the submit: 1 or 2 on the CPU
+    assert len(shard_threads() - before) in ((1, 2) if device == "cpu" else (0,))
     env.close()
     assert not (shard_threads() - before)

@@ -1,4 +1,5 @@
-"""The Newton cartpole from the stage against an independent closed-form cart + pole model."""
+"""The Newton cart-pole of each task's stage, stepped through the env, against an independent closed-form cart + pole
+model: the balance task's stage (and Newton's copy of Isaac Lab's) and the swing-up's (dm_control's model)."""
 
 import math
 from pathlib import Path
@@ -9,7 +10,7 @@ import pytest
 import torch
 from pxr import Usd, UsdGeom, UsdPhysics
 
-from cartpole_warp.config import data_path
+from cartpole_warp.files import data_path
 
 DURATION_S = 1.2
 PHYSICS_DT_S = 1.0 / 4000.0
@@ -18,12 +19,15 @@ PHYSICS_DT_S = 1.0 / 4000.0
 STAGE = data_path("usd", "cartpole.usda")
 NEWTON_STAGE = Path(newton.examples.get_asset("cartpole_single_pendulum.usda"))
 """Newton's copy of Isaac Lab's cartpole: joints slider_to_cart and cart_to_pole, no authored pole inertia."""
+DMC_STAGE = data_path("usd", "cartpole_dmc.usda")
+"""The swing-up's stage, dm_control's cartpole: a 1 kg cart on a +-1.8 m slider, a 0.1 kg capsule pole of 1 m."""
 STAGES = {
     "ours": (STAGE, {}, ("/cartpole/cart", "/cartpole/pole", "/cartpole/poleJoint")),
     "newton": (NEWTON_STAGE, {"cart_joint": "slider_to_cart", "pole_joint": "cart_to_pole"},
                ("/cartpole/cart", "/cartpole/pole", "/cartpole/cart/cart_to_pole")),
+    "dmc": (DMC_STAGE, {}, ("/cartpole/cart", "/cartpole/pole", "/cartpole/poleJoint")),
 }
-"""Stage, the sim settings that name its joints, and its cart body, pole body and pole joint prims."""
+"""Stage, the task settings that name its joints, and its cart body, pole body and pole joint prims."""
 
 
 def pole_inertia_about_com(pole: Usd.Prim, mass: float, com: np.ndarray) -> float:
@@ -112,35 +116,89 @@ def test_newton_stage_parameters_come_from_its_geometry():
     assert p["pole_inertia"] == pytest.approx((0.06**2 + 1.0**2) / 12, rel=1e-5), "derived: no inertia authored"
 
 
-@pytest.mark.parametrize("stage, solver", [("ours", "featherstone"), ("ours", "mujoco"), ("newton", "featherstone")])
+def test_dmc_stage_parameters_are_dm_controls():
+    """dm_control's cartpole.xml: cart mass 1, pole capsule fromto 0 0 0 0 0 1 of radius 0.045 and mass 0.1; the
+    pole's inertia is authored on the stage, equal to a uniform capsule's (cylinder plus two hemispheres)."""
+    p = stage_parameters("dmc")
+    assert (p["cart_mass"], p["pole_mass"], p["gravity"]) == pytest.approx((1.0, 0.1, 9.81))
+    assert p["com_length"] == pytest.approx(0.5, abs=1e-6)
+    r, h, m = 0.045, 1.0, 0.1
+    cylinder, caps = math.pi * r * r * h, 4 / 3 * math.pi * r**3
+    m_cyl, m_caps = m * cylinder / (cylinder + caps), m * caps / (cylinder + caps)
+    capsule = m_cyl * (h * h / 12 + r * r / 4) + m_caps * (2 * r * r / 5 + h * h / 4 + 3 * h * r / 8)
+    assert p["pole_inertia"] == pytest.approx(capsule, rel=1e-6)
+    stage = Usd.Stage.Open(str(DMC_STAGE))
+    assert UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/pole")).GetDiagonalInertiaAttr().HasAuthoredValue()
+
+
+def observed_states(obs: np.ndarray, task: str) -> np.ndarray:
+    """(..., 4) [cart_pos, cart_vel, pole_angle, pole_vel] from a task's observations (..., num_obs)."""
+    if task == "cartpole-balance":
+        return obs
+    assert task == "cartpole-swingup"
+    return np.stack([obs[..., 0], obs[..., 3], np.arctan2(obs[..., 2], obs[..., 1]), obs[..., 4]], axis=-1)
+
+
+TRAJECTORY_CASES = {
+    "ours": dict(task="cartpole-balance", effort_n=400.0,
+                 task_settings={"reset_dist_m": 100.0, "max_pole_angle_rad": 100.0},
+                 starts=[[0.0, 0.0, 0.1, 0.0], [0.5, -0.3, -0.2, 0.5], [-1.0, 0.4, 0.05, -0.8]],
+                 amplitudes=(0.08, 0.03, -0.02), cart_limit_m=None),
+    "dmc": dict(task="cartpole-swingup", effort_n=10.0, task_settings={},
+                starts=[[0.0, 0.0, math.pi - 0.1, 0.0], [0.3, -0.3, 0.2, 0.8], [-0.4, 0.4, 2.0, -1.5]],
+                amplitudes=(0.8, 0.5, -0.15), cart_limit_m=1.8),
+}
+"""Per stage: its task, the cart force (N) of action 1, the task settings that keep episodes running, three starting
+states, the action amplitudes of ``actions`` (forces of a few percent of the balance's 400 N, up to most of the
+swing-up's 10 N) and the slider's limits (m), which the closed form does not model: the cart must stay clear of them."""
+TRAJECTORY_CASES["newton"] = TRAJECTORY_CASES["ours"]
+
+
+def actions(steps, amplitudes):
+    """(steps, 3) actions: a 1.5 Hz sine, a cosine and a constant, with pulses beyond the action clip at 0.3 s and
+    0.6 s."""
+    t = np.arange(steps) * PHYSICS_DT_S
+    pulse = np.where((t >= 0.3) & (t < 0.305), 2.5, 0.0) - np.where((t >= 0.6) & (t < 0.605), 3.0, 0.0)
+    a, b, c = amplitudes
+    return np.stack([a * np.sin(2 * math.pi * 1.5 * t) + pulse, b * np.cos(7 * t) - pulse, c + pulse], axis=1)
+
+
+@pytest.mark.parametrize("stage, solver", [("ours", "featherstone"), ("ours", "mujoco"), ("newton", "featherstone"),
+                                           ("dmc", "featherstone"), ("dmc", "mujoco")])
 def test_trajectory_matches_closed_form(stage, solver, make):
-    """1.2 s under a fixed force sequence (with pulses beyond the action clip) from three starting states.
+    """1.2 s under a fixed force sequence (with pulses beyond the action clip) from three starting states, through
+    the env of the stage's task (its observations read back as states; the swing-up's pole angle from its cosine and
+    sine, compared modulo 2 pi: its pole swings through the bottom).
 
     Both solvers integrate semi-implicitly (first order): at 1/4000 s the error is about 0.5% of each
     quantity's range, and it shrinks in proportion to the step (about 2% at 1/1000 s).
     """
     p = stage_parameters(stage)
     path, joints, _ = STAGES[stage]
+    case = TRAJECTORY_CASES[stage]
     steps = round(DURATION_S / PHYSICS_DT_S)
-    env = make(3, sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1,
-                       "stage_path": str(path), **joints},
-               task={"episode_length_s": None, "reset_dist_m": 100.0, "max_pole_angle_rad": 100.0})
-    starts = torch.tensor([[0.0, 0.0, 0.1, 0.0], [0.5, -0.3, -0.2, 0.5], [-1.0, 0.4, 0.05, -0.8]])
+    env = make(3, task_name=case["task"],
+               sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1,
+                    "stage_path": str(path)},
+               task={"episode_length_s": None, **case["task_settings"], **joints})
+    assert env.cfg.task.max_push_effort_n == case["effort_n"]
+    starts = torch.tensor(case["starts"])
     env.set_state(starts.to(env.device))
-    t = np.arange(steps) * PHYSICS_DT_S
-    pulse = np.where((t >= 0.3) & (t < 0.305), 2.5, 0.0) - np.where((t >= 0.6) & (t < 0.605), 3.0, 0.0)
-    actions = np.stack([0.08 * np.sin(2 * math.pi * 1.5 * t) + pulse, 0.03 * np.cos(7 * t) - pulse, -0.02 + pulse],
-                       axis=1)
+    commands = actions(steps, case["amplitudes"])
     newton_traj = []
     for k in range(steps):
-        step_actions = torch.tensor(actions[k], dtype=torch.float32, device=env.device).reshape(3, 1)
+        step_actions = torch.tensor(commands[k], dtype=torch.float32, device=env.device).reshape(3, 1)
         obs, _, terminated, truncated, _ = env.step(step_actions)
         assert not (terminated.any() or truncated.any())
         newton_traj.append(obs.cpu().numpy().astype(np.float64))
-    newton_traj = np.array(newton_traj)
+    newton_traj = observed_states(np.array(newton_traj), case["task"])
     for i in range(3):
-        forces = 400.0 * np.clip(actions[:, i], -1.0, 1.0)
+        forces = case["effort_n"] * np.clip(commands[:, i], -1.0, 1.0)
         reference = closed_form_rollout(starts[i].numpy(), forces, PHYSICS_DT_S, p)
-        err = np.abs(newton_traj[:, i] - reference).max(axis=0)
+        if case["cart_limit_m"] is not None:
+            assert np.abs(reference[:, 0]).max() < case["cart_limit_m"] - 0.5, "the cart stays clear of the limits"
+        diff = newton_traj[:, i] - reference
+        diff[:, 2] = np.angle(np.exp(1j * diff[:, 2]))  # the observed angle lies in (-pi, pi]
+        err = np.abs(diff).max(axis=0)
         scale = np.abs(reference).max(axis=0)
         assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"

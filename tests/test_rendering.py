@@ -1,4 +1,5 @@
-"""rgb_array rendering through gymnasium's and SB3's video recorders, and frames that show the state."""
+"""rgb_array rendering through gymnasium's and SB3's video recorders, and frames that show the state; for every
+registered task."""
 
 import math
 
@@ -13,11 +14,17 @@ from stable_baselines3.common.vec_env import VecVideoRecorder
 
 import cartpole_warp
 from cartpole_warp.viz.frames import EnvFrames
-from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
+from cartpole_warp.wrappers.gymnasium import env_ids
 
+TASKS = cartpole_warp.tasks.names()
+IDS = env_ids()
+"""id -> (task name, preset), for every registered task."""
+TASK_IDS = {task: next(env_id for env_id, (name, preset) in IDS.items() if name == task and preset is None)
+            for task in TASKS}
+"""Each task's id with its own defaults."""
 VIDEO_STEPS = 37
-"""Steps recorded; the recorders add the frame before the first step. 38 frames at 60 fps: moviepy, which both
-recorders use, writes all of them (for some other counts it drops the last)."""
+"""Steps recorded; the recorders add the frame before the first step. 38 frames at 60 and 50 fps: moviepy, which
+both recorders use, writes all of them (for some other counts it drops the last)."""
 
 
 def decoded_frames(folder):
@@ -25,9 +32,16 @@ def decoded_frames(folder):
     return [frame for frame in imageio.get_reader(video)]  # list() asks the reader's length, which is infinite
 
 
-def test_record_video_around_the_single_env(tmp_path):
-    env = gym.make("cartpole_warp/CartpoleTutorial-v0", render_mode="rgb_array")
-    assert env.metadata["render_fps"] == 60 and env.metadata["render_modes"] == ["rgb_array"]
+def expected_fps(env_id):
+    task, preset = IDS[env_id]
+    return round(1.0 / cartpole_warp.tasks.env_config(task, preset).sim.env_dt)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_record_video_around_the_single_env(env_id, tmp_path):
+    env = gym.make(env_id, render_mode="rgb_array")
+    assert env.metadata["render_fps"] == expected_fps(env_id) and env.metadata["render_modes"] == ["rgb_array"]
+    assert expected_fps(env_id) == {"cartpole-balance": 60, "cartpole-swingup": 50}.get(IDS[env_id][0])
     env = RecordVideo(env, str(tmp_path), episode_trigger=lambda episode: True, video_length=VIDEO_STEPS)
     env.reset(seed=0)
     for _ in range(VIDEO_STEPS + 5):
@@ -35,11 +49,13 @@ def test_record_video_around_the_single_env(tmp_path):
     env.close()
     frames = decoded_frames(tmp_path)
     assert len(frames) == VIDEO_STEPS + 1 and frames[0].shape[2] == 3
+    assert frames[0].std() > 10, "the frames show something"
 
 
-def test_record_video_around_the_vector_env_draws_only_what_it_records(tmp_path):
-    envs = gym.make_vec("cartpole_warp/Cartpole-v0", num_envs=8, vectorization_mode="vector_entry_point",
-                        render_mode="rgb_array")
+@pytest.mark.parametrize("task", TASKS)
+def test_record_video_around_the_vector_env_draws_only_what_it_records(task, tmp_path):
+    envs = gym.make_vec(TASK_IDS[task], num_envs=8, vectorization_mode="vector_entry_point", render_mode="rgb_array")
+    assert envs.metadata["render_fps"] == expected_fps(TASK_IDS[task])
     frames = envs.render()
     assert isinstance(frames, EnvFrames) and len(frames) == 8 and frames[7].dtype == np.uint8
     envs = VectorRecordVideo(envs, str(tmp_path), record_first_only=True, step_trigger=lambda step: step == 0,
@@ -51,8 +67,11 @@ def test_record_video_around_the_vector_env_draws_only_what_it_records(tmp_path)
     assert len(decoded_frames(tmp_path)) == VIDEO_STEPS + 1
 
 
-def test_sb3_vec_video_recorder(tmp_path):
-    venv = CartpoleSb3VecEnv(cartpole_warp.make_env(num_envs=8), render_mode="rgb_array")
+@pytest.mark.parametrize("task", TASKS)
+def test_sb3_vec_video_recorder(task, tmp_path):
+    from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
+
+    venv = CartpoleSb3VecEnv(cartpole_warp.tasks.make(task, num_envs=8), render_mode="rgb_array")
     assert venv.render().shape == venv.get_images()[0].shape and len(venv.get_images()) == 8
     venv = VecVideoRecorder(venv, str(tmp_path), record_video_trigger=lambda step: step == 0,
                             video_length=VIDEO_STEPS)
@@ -63,24 +82,41 @@ def test_sb3_vec_video_recorder(tmp_path):
     assert len(decoded_frames(tmp_path)) == VIDEO_STEPS + 1
 
 
-def columns_of(frame, rgb):
-    """Mean column of the pixels within 30 of ``rgb``."""
-    hits = np.argwhere((np.abs(frame.astype(int) - np.array(rgb)) < 30).all(axis=2))
-    assert len(hits) > 20, f"no pixels of colour {rgb}"
-    return hits[:, 1].mean()
+def pixels_of(frame, rgb):
+    """(H, W) bool: the pixels within 30 of ``rgb``."""
+    return (np.abs(frame.astype(int) - np.array(rgb)) < 30).all(axis=2)
+
+
+def mean_column(mask):
+    assert mask.sum() > 20, "too few pixels"
+    return np.argwhere(mask)[:, 1].mean()
+
+
+def mean_row(mask):
+    assert mask.sum() > 20, "too few pixels"
+    return np.argwhere(mask)[:, 0].mean()
 
 
 @pytest.mark.parametrize("pole_angle", [0.6, -0.6])
-def test_a_frame_shows_the_pole_where_the_state_puts_it(pole_angle):
-    env = cartpole_warp.make_env(num_envs=3)
+@pytest.mark.parametrize("task", TASKS)
+def test_a_frame_shows_the_pole_where_the_state_puts_it(task, pole_angle):
+    """Located by colour; where the cart and the pole share one (the swing-up stage), the pole is told apart by
+    what differs from the frame with the pole upright over the cart at the same place."""
+    env = cartpole_warp.tasks.make(task, num_envs=5)
     frames = EnvFrames(env)
-    states = torch.tensor([[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, pole_angle, 0.0], [-1.0, 0.0, 0.0, 0.0]])
+    states = torch.tensor([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, pole_angle, 0.0], [1.0, 0.0, 0.0, 0.0],
+                           [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, math.pi, 0.0]])
     env.set_state(states)
-    colours = {box.name: tuple(round(255 * c) for c in box.color_srgb) for box in frames._geometry(0).boxes}
-    pole, cart = colours["pole"], colours["cart"]
+    colours = {shape.name: tuple(round(255 * c) for c in shape.color_srgb) for shape in frames._geometry(0).shapes}
+    pole, cart, rail = colours["pole"], colours["cart"], colours["rail"]
+    upright = pixels_of(frames[0], pole)  # the upright pole (and the cart where it has the pole's colour)
+    tilted = pixels_of(frames[1], pole) & ~upright
+    hanging = pixels_of(frames[4], pole) & ~upright
     # the pole turns about +X: its centre of mass sits at y = cart_pos - l sin(pole_angle) (tests/test_physics.py)
-    offset = columns_of(frames[1], pole) - columns_of(frames[1], cart)
+    offset = mean_column(tilted) - mean_column(upright)
     assert math.copysign(1, offset) == -math.copysign(1, pole_angle) and abs(offset) > 10
-    assert columns_of(frames[1], cart) > columns_of(frames[0], cart) > columns_of(frames[2], cart), "cart_pos"
-    upright = columns_of(frames[0], pole) - columns_of(frames[0], cart)
-    assert abs(upright) < abs(offset)
+    rail_row = mean_row(pixels_of(frames[0], rail))
+    assert mean_row(tilted) < rail_row - 10 < rail_row + 10 < mean_row(hanging), "angle 0 is up, pi down"
+    assert abs(mean_column(hanging) - mean_column(upright)) < 3
+    columns = [mean_column(pixels_of(frames[i], cart)) for i in (2, 0, 3)]
+    assert columns[0] > columns[1] + 10 > columns[2] + 20, "cart_pos 1, 0, -1 from right to left"

@@ -1,4 +1,5 @@
-"""Stable-Baselines3 adapter: the VecEnv contract and a short PPO run."""
+"""Stable-Baselines3 adapter, for every registered task: the VecEnv contract, sb3's check_env on the single env, and
+a short PPO run."""
 
 import numpy as np
 import pytest
@@ -8,25 +9,39 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
-from cartpole_warp import CartpoleGymEnv, make_env
+import cartpole_warp
+from cartpole_warp import CartpoleGymEnv
+from cartpole_warp.wrappers.gymnasium import env_ids
 from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
 
+TASKS = cartpole_warp.tasks.names()
 SHORT_EPISODES = {"episode_length_s": 0.2}
-"""12 env steps at 60 Hz: truncations within a short test."""
+"""10-12 env steps: truncations within a short test."""
 
 
-def test_single_gym_env_passes_sb3_check_env():
-    sb3_check_env(CartpoleGymEnv(preset="tutorial"), warn=False)
+def make_env(task_name, num_envs, **overrides):
+    """Task ``task_name``'s env on the CPU; ``overrides`` as for ``tasks.make`` (``task={...}``: its settings)."""
+    return cartpole_warp.tasks.make(task_name, num_envs=num_envs, preset="default", **overrides)
 
 
-def test_vec_env_steps_like_the_core_env_with_sb3_infos():
+@pytest.mark.parametrize("env_id", env_ids())
+def test_single_gym_env_passes_sb3_check_env(env_id):
+    task, preset = env_ids()[env_id]
+    env = CartpoleGymEnv(task_name=task, preset=preset)
+    sb3_check_env(env, warn=False)
+    assert env.observation_space.shape == (env.core.num_obs,)
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_vec_env_steps_like_the_core_env_with_sb3_infos(task):
     num_envs, seed = 16, 21
-    venv = CartpoleSb3VecEnv(make_env(num_envs=num_envs, preset="default", task=SHORT_EPISODES))
-    core = make_env(num_envs=num_envs, preset="default", task=SHORT_EPISODES)
+    venv = CartpoleSb3VecEnv(make_env(task, num_envs, task=SHORT_EPISODES))
+    core = make_env(task, num_envs, task=SHORT_EPISODES)
     assert isinstance(venv, VecEnv) and venv.num_envs == num_envs
+    assert venv.observation_space.shape == (core.num_obs,) and venv.action_space.shape == (1,)
     venv.seed(seed)
     obs = venv.reset()
-    assert obs.dtype == np.float32 and obs.shape == (num_envs, 4)
+    assert obs.dtype == np.float32 and obs.shape == (num_envs, core.num_obs)
     np.testing.assert_array_equal(obs, core.reset(seed=seed)[0].numpy())
     returns, lengths = np.zeros(num_envs), np.zeros(num_envs, int)
     saw_terminated = saw_truncated = False
@@ -51,12 +66,14 @@ def test_vec_env_steps_like_the_core_env_with_sb3_infos():
             saw_truncated |= bool(c_trunc[i])
             saw_terminated |= bool(c_term[i])
         returns[dones], lengths[dones] = 0.0, 0
-    assert saw_terminated and saw_truncated
-    assert venv.episode_count > 0
+    assert saw_truncated
+    assert saw_terminated == bool(core.task_ends), "only a task with failures terminates (at 400 N it does)"
+    assert venv.episode_count >= num_envs * 2
 
 
-def test_vec_env_seed_reset_and_errors():
-    venv = CartpoleSb3VecEnv(make_env(num_envs=4, preset="default"))
+@pytest.mark.parametrize("task", TASKS)
+def test_vec_env_seed_reset_and_errors(task):
+    venv = CartpoleSb3VecEnv(make_env(task, 4))
     venv.seed(3)
     first = venv.reset()
     unseeded = venv.reset()
@@ -69,25 +86,33 @@ def test_vec_env_seed_reset_and_errors():
         venv.step(np.zeros((2, 1), np.float32))
 
 
-def test_vec_env_attributes_and_methods_act_on_the_shared_env():
-    venv = CartpoleSb3VecEnv(make_env(num_envs=4, preset="default"))
+@pytest.mark.parametrize("task", TASKS)
+def test_vec_env_attributes_and_methods_act_on_the_shared_env(task):
+    venv = CartpoleSb3VecEnv(make_env(task, 4))
+    limit = cartpole_warp.tasks.env_config(task).max_episode_length
+    assert limit == {"cartpole-balance": 600, "cartpole-swingup": 500}.get(task, limit)
     venv.reset()
-    assert venv.get_attr("max_episode_length") == [600] * 4
+    assert venv.get_attr("max_episode_length") == [limit] * 4
     assert venv.get_attr("num_envs", indices=[1, 2]) == [4, 4]
     assert venv.has_attr("env_dt") and not venv.has_attr("no_such_attribute")
-    venv.set_attr("episode_length_buf", torch.full((4,), 599, dtype=torch.int32))
+    venv.set_attr("episode_length_buf", torch.full((4,), limit - 1, dtype=torch.int32))
     _, _, dones, infos = venv.step(np.zeros((4, 1), np.float32))
     assert dones.all() and all(info["TimeLimit.truncated"] for info in infos)
-    states = torch.zeros(4, 4)
+    states = torch.full((4, 2 * len(venv.env.joint_roles)), 0.1)
     (obs,) = venv.env_method("set_state", states, indices=[0])
-    assert torch.equal(obs, states)
+    reference = make_env(task, 4)
+    assert torch.equal(obs, reference.set_state(states)) and torch.equal(obs, venv.env.get_observations())
     assert venv.env_is_wrapped(Monitor) == [False] * 4
 
 
-def test_short_ppo_run_on_vec_env():
-    venv = CartpoleSb3VecEnv(make_env(num_envs=16, preset="default"))
+@pytest.mark.parametrize("task", TASKS)
+def test_short_ppo_run_on_vec_env(task):
+    venv = CartpoleSb3VecEnv(make_env(task, 16, task={"episode_length_s": 1.0}))
     model = PPO("MlpPolicy", venv, n_steps=64, batch_size=256, n_epochs=2, seed=0, device="cpu")
     model.learn(total_timesteps=4096)
     assert model.num_timesteps >= 4096
     assert len(model.ep_info_buffer) > 0
     assert all(e["l"] > 0 for e in model.ep_info_buffer)
+    obs = venv.reset()
+    actions, _ = model.predict(obs, deterministic=True)
+    assert actions.shape == (16, 1)

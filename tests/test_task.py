@@ -1,4 +1,5 @@
-"""Tutorial parity: reward, termination and reset ranges, checked against the tutorial's own formulas."""
+"""Tutorial parity of the cartpole-balance task (balance-only: the swing-up is checked against dm_control in
+test_swingup.py): reward, termination and reset ranges, checked against the tutorial's own formulas."""
 
 import math
 
@@ -7,6 +8,7 @@ import torch
 
 # From the tutorial (cartpole_task.py): _reset_dist = 3.0, _max_push_effort = 400.0
 RESET_DIST = 3.0
+BALANCE = "cartpole-balance"
 
 
 def tutorial_reward(obs):
@@ -36,7 +38,7 @@ def sample_states(num_envs, seed):
 def test_reward_and_termination_equal_the_tutorial_formulas(make, random_actions):
     n = 4096
     for preset in ("default", "tutorial"):
-        env = make(n, preset=preset)
+        env = make(n, preset=preset, task_name=BALANCE)
         env.set_state(sample_states(n, seed=1).to(env.device))
         _, reward, terminated, truncated, info = env.step(random_actions(n, 1)[0])
         final = info["final_obs"].cpu()
@@ -45,11 +47,17 @@ def test_reward_and_termination_equal_the_tutorial_formulas(make, random_actions
         torch.testing.assert_close(reward.cpu(), tutorial_reward(final), rtol=1e-5, atol=1e-5)
         assert torch.equal(terminated.cpu(), expected_done)
         assert not truncated.any()
+        # the end reason names the tutorial's first failing check: the cart, then the pole
+        cart_out = final[:, 0].abs() > RESET_DIST
+        expected = torch.where(cart_out, env.end_reasons.index("cart_out_of_range"),
+                               torch.where(expected_done, env.end_reasons.index("pole_fell"), 0))
+        assert torch.equal(info["end_reason"].cpu(), expected.int())
+        assert 0 < int(cart_out.sum()) < int(expected_done.sum()), "both failures occur"
 
 
 def test_observation_order_matches_the_physics(make):
     """cart_vel is the derivative of cart_pos and pole_vel that of pole_angle (observation order)."""
-    env = make(8, task={"reset_dist_m": 100.0, "max_pole_angle_rad": 100.0})
+    env = make(8, task_name=BALANCE, task={"reset_dist_m": 100.0, "max_pole_angle_rad": 100.0})
     states = torch.tensor([[0.1 * i, 0.5, 0.05 * i, -0.3] for i in range(8)])
     env.set_state(states.to(env.device))
     obs1, *_ = env.step(torch.zeros(8, 1, device=env.device))
@@ -60,7 +68,7 @@ def test_observation_order_matches_the_physics(make):
 
 
 def test_resets_fall_in_the_tutorial_ranges_and_cover_them(make):
-    env = make(4096, seed=3)
+    env = make(4096, seed=3, task_name=BALANCE)
     samples = torch.cat([env.reset()[0].cpu() for _ in range(4)])
     # tutorial reset(): cart 1.0*(1-2u), pole 0.125*pi*(1-2u), cart_vel 0.5*(1-2u), pole_vel 0.25*pi*(1-2u)
     bounds = torch.tensor([1.0, 0.5, 0.125 * math.pi, 0.25 * math.pi])

@@ -19,17 +19,19 @@ its centre of mass 0.5 m above the hinge at the cart centre, with MuJoCo's capsu
 slider range +-1.8 m; gravity 9.81 m/s^2 (MuJoCo's default). The XML slides along X and hinges about Y; here the
 slide is along Y and the hinge about X, so a positive pole angle tips the pole towards -Y (towards -slide), where
 dm_control's positive hinge angle tips it towards +slide: the angle's sign is flipped, its cosine is not. Not
-modelled: the joint dampings (slider 5e-4 N s/m, hinge 2e-6 N m s/rad), the slider limit's ``solreflimit=".08 1"``,
+modelled: the joint dampings (slider 5e-4 N s/m, hinge 2e-6 N m s/rad), the slider limit's ``solreflimit=".08 1"``
+(a critically damped limit spring of Newton's stands for it: ``DMC_LIMIT_STIFFNESS_N_M``),
 the actuator (a motor of gear 10 with ``ctrlrange="-1 1"``, i.e. up to 10 N on the cart: the env applies the force),
 the timestep (0.01 s, RK4), and the two decorative rail capsules (radius 0.02 m, 4 m long, 0.14 m apart), for which
 one 0.04 x 4 x 0.04 m box stands.
 """
 
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from pxr import Gf, Usd, UsdGeom, UsdPhysics
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics
 
 GRAVITY_M_S2 = 9.81
 RAIL_SIZE_M = (0.03, 8.0, 0.03)
@@ -51,6 +53,11 @@ DMC_POLE_LENGTH_M = 1.0
 DMC_POLE_MASS_KG = 0.1
 DMC_COLORS = {"rail": (0.3, 0.5, 0.7), "cart": (0.7, 0.5, 0.3), "pole": (0.7, 0.5, 0.3)}
 """dm_control's materials: ``decoration`` for the rails, ``self`` for the cart and the pole."""
+DMC_LIMIT_STIFFNESS_N_M = 2500.0
+"""The slider's limits as a critically damped spring (damping 2 sqrt(stiffness x (cart + pole mass))): the cart stops
+at +-1.8 m (4 mm deep under the full 10 N) instead of bouncing back, as dm_control's ``solreflimit=".08 1"``
+(damping ratio 1) makes it; Newton's default limit (1e4 N/m, 10 N s/m) is damped 5% of critical and throws the cart
+back at nearly its speed. Soft enough for an explicit 0.01 s step."""
 RAIL_MASS_KG = 1.0
 """The rail is fixed to the world, so its mass never enters the dynamics."""
 
@@ -132,6 +139,10 @@ class Cartpole:
     cart_travel_limit_m: float
     colors: dict
     gravity_m_s2: float = GRAVITY_M_S2
+    cart_limit_stiffness_n_m: float | None = None
+    """Newton's ``newton:limitStiffness`` of the slider's limits (None: Newton's default, 1e4 N/m, with 10 N s/m)."""
+    cart_limit_damping_n_s_m: float | None = None
+    """Newton's ``newton:limitDamping`` of the slider's limits."""
 
 
 CLASSIC = Cartpole(rail=Box(RAIL_SIZE_M), cart=Box(CART_SIZE_M), cart_mass_kg=CART_MASS_KG, pole=Box(POLE_SIZE_M),
@@ -141,7 +152,9 @@ CLASSIC = Cartpole(rail=Box(RAIL_SIZE_M), cart=Box(CART_SIZE_M), cart_mass_kg=CA
 DMC = Cartpole(rail=Box(DMC_RAIL_SIZE_M), cart=Box(DMC_CART_SIZE_M), cart_mass_kg=DMC_CART_MASS_KG,
                pole=Capsule(DMC_POLE_RADIUS_M, DMC_POLE_LENGTH_M), pole_mass_kg=DMC_POLE_MASS_KG,
                pole_com_above_hinge_m=DMC_POLE_LENGTH_M / 2, hinge_offset_from_cart_m=0.0,
-               cart_travel_limit_m=DMC_CART_TRAVEL_LIMIT_M, colors=DMC_COLORS)
+               cart_travel_limit_m=DMC_CART_TRAVEL_LIMIT_M, colors=DMC_COLORS,
+               cart_limit_stiffness_n_m=DMC_LIMIT_STIFFNESS_N_M,
+               cart_limit_damping_n_s_m=2.0 * math.sqrt(DMC_LIMIT_STIFFNESS_N_M * (DMC_CART_MASS_KG + DMC_POLE_MASS_KG)))
 
 
 def _body(stage, path, translate, shape, shape_center, mass_kg, color):
@@ -190,6 +203,10 @@ def build_stage(spec: Cartpole = CLASSIC):
     cart_joint.CreateAxisAttr(UsdPhysics.Tokens.y)
     cart_joint.CreateLowerLimitAttr(-spec.cart_travel_limit_m)
     cart_joint.CreateUpperLimitAttr(spec.cart_travel_limit_m)
+    if spec.cart_limit_stiffness_n_m is not None:
+        prim = cart_joint.GetPrim()
+        prim.CreateAttribute("newton:limitStiffness", Sdf.ValueTypeNames.Float).Set(spec.cart_limit_stiffness_n_m)
+        prim.CreateAttribute("newton:limitDamping", Sdf.ValueTypeNames.Float).Set(spec.cart_limit_damping_n_s_m)
 
     pole_joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/poleJoint")
     pole_joint.CreateBody0Rel().SetTargets([cart.GetPath()])

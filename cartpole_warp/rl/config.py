@@ -218,13 +218,13 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> T
         preset_data = load_preset(preset)
         require(preset_data.get("task", task) == task,
                 f"preset {preset!r} is for task {preset_data.get('task')!r}, not {task!r}")
-        data = merge(data, overrides_dict(preset_data, f"preset {preset!r}"))
+        data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
 
 
 def load_train_config(data: dict, where: str) -> TrainConfig:
     """A saved TrainConfig (a run's ``config.yaml``) from its dict: the task it names picks the settings' class."""
-    task = overrides_dict(data, where).get("task", tasks.DEFAULT_TASK)
+    task = overrides_dict(data, f"{where}:").get("task", tasks.DEFAULT_TASK)
     return from_dict(TrainConfig[tasks.get(task).env_class.config_class], data, where)
 
 

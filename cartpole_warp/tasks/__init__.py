@@ -109,8 +109,8 @@ def env_config(name: str, preset: str | None = None, **overrides) -> EnvConfig:
     cls = EnvConfig[task.env_class.config_class]
     data = merge(dataclasses.asdict(cls(task=task.env_class.config_class())), task.defaults.get("env", {}))
     if preset is not None:
-        data = merge(data, overrides_dict(load_preset(preset).get("env", {}), f"preset {preset!r}: env"))
-    data = merge(data, overrides_dict({k: v for k, v in overrides.items() if v is not None}, "overrides"))
+        data = merge(data, overrides_dict(load_preset(preset).get("env", {}), f"preset {preset!r}: env:"))
+    data = merge(data, overrides_dict({k: v for k, v in overrides.items() if v is not None}, "overrides:"))
     return from_dict(cls, data, f"task {name!r}" + (f", preset {preset!r}" if preset else ""))
 
 

@@ -117,6 +117,7 @@ TASK = register(Task(
     summary="swing the pole up from hanging down and hold it (dm_control's swing-up, 10 N cart, 10 s episodes)",
     solved=SolvedRule(min_reward_per_step=0.8, full_episodes_only=True),
     play_metric="full_reward_per_step",
-    defaults={"env": {"sim": {"physics_dt": 0.01, "decimation": 2}}},
+    defaults={"env": {"sim": {"physics_dt": 0.01, "decimation": 2}},
+              "agent": {"max_iterations": 500, "num_steps_per_env": 16}},
     gym_ids={"cartpole_warp/CartpoleSwingup-v0": None},
 ))
