@@ -58,6 +58,9 @@ DMC_LIMIT_STIFFNESS_N_M = 2500.0
 at +-1.8 m (4 mm deep under the full 10 N) instead of bouncing back, as dm_control's ``solreflimit=".08 1"``
 (damping ratio 1) makes it; Newton's default limit (1e4 N/m, 10 N s/m) is damped 5% of critical and throws the cart
 back at nearly its speed. Soft enough for an explicit 0.01 s step."""
+MUJOCO_SOLREFLIMIT = (0.02, 1.0)
+"""MuJoCo's default limit solref (time constant 0.02 s, damping ratio 1) for SolverMuJoCo, which reads ``mjc:`` attributes
+rather than Newton's limit spring (from that spring it makes a softer constraint: the cart went 0.7 m past 1.8 m)."""
 RAIL_MASS_KG = 1.0
 """The rail is fixed to the world, so its mass never enters the dynamics."""
 
@@ -207,6 +210,7 @@ def build_stage(spec: Cartpole = CLASSIC):
         prim = cart_joint.GetPrim()
         prim.CreateAttribute("newton:limitStiffness", Sdf.ValueTypeNames.Float).Set(spec.cart_limit_stiffness_n_m)
         prim.CreateAttribute("newton:limitDamping", Sdf.ValueTypeNames.Float).Set(spec.cart_limit_damping_n_s_m)
+        prim.CreateAttribute("mjc:solreflimit", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(*MUJOCO_SOLREFLIMIT))
 
     pole_joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/poleJoint")
     pole_joint.CreateBody0Rel().SetTargets([cart.GetPath()])
