@@ -1,5 +1,5 @@
-"""``BatchedEnv``: the machinery of a batched env on Newton and Warp, robot-agnostic. A task subclasses it with its sizes,
-its stage and joint roles, and four Warp functions (``TaskFunctions``); everything else lives here.
+"""``BatchedEnv``: the machinery of a batched env on Newton and Warp, robot-agnostic. A task subclasses it with its
+sizes, its stage and joint roles, and four Warp functions (``TaskFunctions``); everything else lives here.
 
 One env step: clip actions to [-1, 1] -> joint forces of the task -> ``decimation`` solver steps -> observe, reward and
 end reason of the task -> time limit, returns and lengths, keep the final observation -> masked reset of the ended envs
@@ -56,15 +56,16 @@ def params_of(params_type: type, task: TaskConfig) -> Any:
 
 @dataclass(frozen=True)
 class TaskFunctions:
-    """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order of
-    the task's roles, ``Obs`` and ``Actions`` vectors of ``num_obs`` and ``num_actions`` floats, ``p`` the task's
+    """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order
+    of the task's roles, ``Obs`` and ``Actions`` vectors of ``num_obs`` and ``num_actions`` floats, ``p`` the task's
     ``kernel_params`` struct."""
 
     observe: Any
     """``(q: Joints, qd: Joints, p) -> Obs``: the observation of a joint state."""
     evaluate: Any
     """``(q: Joints, qd: Joints, action: Actions, p) -> (reward: float, end: int)`` on the state after the physics
-    step (``action`` already clipped to [-1, 1]); ``end`` is END_NONE or one of the task's codes (FIRST_TASK_END + i)."""
+    step (``action`` already clipped to [-1, 1]); ``end`` is END_NONE or one of the task's codes (FIRST_TASK_END +
+    i)."""
     sample_reset: Any
     """``(rng_state: wp.array(dtype=wp.uint32), env: int, p) -> (q: Joints, qd: Joints)``: a random start; advances
     ``rng_state[env]``."""
@@ -183,7 +184,7 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         steps = steps_run[env] + 1
         a = actions[env]
         o = obs[env]
-        r = float(0.0)
+        r = float(0.0)  # noqa: UP018 (a Warp variable that the branch below assigns, not a constant)
         reason = END_NONE
         if all_finite(q, qd):
             o = fns.observe(q, qd, p)
@@ -247,7 +248,8 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
                           last_qd, obs, episode_length, steps_run, episode_return)
 
     return SimpleNamespace(Joints=Joints, Actions=Actions, Obs=Obs, State=State, apply_actions=apply_actions,
-                           random_actions=random_actions, finish_step=finish_step, reset_masked=reset_masked, set_states_masked=set_states_masked)
+                           random_actions=random_actions, finish_step=finish_step, reset_masked=reset_masked,
+                           set_states_masked=set_states_masked)
 
 
 class BatchedEnv(abc.ABC):
@@ -371,7 +373,8 @@ class BatchedEnv(abc.ABC):
 
     def _apply_actions(self, shard: Shard):
         s = shard.scene
-        wp.launch(self._kernels.apply_actions, dim=shard.num_envs, inputs=[self.params, s.dofs_per_env, self._role_dofs],
+        wp.launch(self._kernels.apply_actions, dim=shard.num_envs,
+                  inputs=[self.params, s.dofs_per_env, self._role_dofs],
                   outputs=[shard.rows(self._actions), s.control.joint_f, shard.slot(self._nonfinite_actions)],
                   device=self.device)
 

@@ -1,6 +1,6 @@
 """Train a task with rsl-rl PPO on the batched Warp/Newton env.
 
-    python train.py --num-envs 4096 --device cpu          # cartpole-balance: a new run under logs/rsl_rl/cartpole-balance/
+    python train.py --num-envs 4096 --device cpu          # cartpole-balance, a run in logs/rsl_rl/cartpole-balance/
     python train.py --task cartpole-swingup               # another registered task (listed below)
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point

@@ -19,9 +19,10 @@ def test_wheel_runs_make_env_and_training_outside_the_repo(repo, tmp_path):
                    check=True, capture_output=True, timeout=600)
     (wheel,) = (tmp_path / "dist").glob("cartpole_warp-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    for packaged in ("cartpole_warp/usd/cartpole.usda", "cartpole_warp/configs/default.yaml",
-                     "cartpole_warp/configs/tutorial.yaml", "cartpole_warp/configs/isaac_lab.yaml",
-                     "cartpole_warp/rl/runner.py"):
+    for packaged in ("cartpole_warp/usd/cartpole.usda", "cartpole_warp/usd/cartpole_dmc.usda",
+                     "cartpole_warp/configs/default.yaml", "cartpole_warp/configs/tutorial.yaml",
+                     "cartpole_warp/configs/isaac_lab.yaml", "cartpole_warp/rl/runner.py",
+                     "cartpole_warp/tasks/balance.py", "cartpole_warp/tasks/swingup.py", "cartpole_warp/tools/bench.py"):
         assert packaged in names, packaged
 
     venv = tmp_path / "venv"
@@ -43,17 +44,20 @@ def test_wheel_runs_make_env_and_training_outside_the_repo(repo, tmp_path):
         "    env = cartpole_warp.make_env(num_envs=8, preset=preset)\n"
         "    obs, *_ = env.step(torch.zeros(8, 1))\n"
         "    print(preset, env.env_dt, env.max_episode_length, tuple(obs.shape))\n"
+        "env = cartpole_warp.tasks.make('cartpole-swingup', num_envs=8)\n"
+        "print('swingup', env.max_episode_length, tuple(env.step(torch.zeros(8, 1))[0].shape))\n"
     )
     result = subprocess.run([python, "-c", script], cwd=outside, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "default 0.016666666666666666 600 (8, 4)" in result.stdout
     assert "tutorial 0.016666666666666666 2147483647 (8, 4)" in result.stdout
+    assert "swingup 500 (8, 5)" in result.stdout, "the swing-up's stage ships in the wheel"
 
-    result = subprocess.run([python, "-m", "cartpole_warp.train", "--num-envs", "64", "--max-iterations", "1",
-                             "--logger", "none", "--log-dir", "runs"], cwd=outside, capture_output=True, text=True,
-                            timeout=600)
+    result = subprocess.run([python, "-m", "cartpole_warp.train", "--task", "cartpole-swingup", "--num-envs", "64",
+                             "--max-iterations", "1", "--logger", "none", "--log-dir", "runs"], cwd=outside,
+                            capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
-    (summary,) = (outside / "runs").rglob("summary.json")
+    (summary,) = (outside / "runs" / "rsl_rl" / "cartpole-swingup").rglob("summary.json")
     assert json.loads(summary.read_text())["iterations"] == 1
 
 

@@ -72,7 +72,8 @@ def test_train_writes_every_artefact(trained):
     assert summary["env_steps"] == 2 * 64 * saved["agent"]["num_steps_per_env"]
     assert summary["env_steps_per_s"] > 0 and summary["device"] == "cpu" and summary["versions"]["rsl-rl-lib"]
     assert isinstance(summary["solved"], bool) and summary["checkpoint"] == "model_1.pt"
-    assert summary["task"] == saved["task"] and summary["solved_definition"] == tasks.get(saved["task"]).solved.describe(
+    rule = tasks.get(saved["task"]).solved
+    assert summary["task"] == saved["task"] and summary["solved_definition"] == rule.describe(
         summary["max_episode_length"])
     assert summary["final"]["mean_episode_length"] > 0
 
@@ -130,12 +131,14 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
 
     video = imageio.get_reader(run / "play" / "cartpole.mp4")
     frames = [frame for frame in video]  # list() asks the reader's length, which is infinite
-    assert len(frames) == 41 and video.get_meta_data()["fps"] == 60 and frames[0].ndim == 3
+    env_dt = yaml.safe_load((run / "config.yaml").read_text())["env"]["sim"]
+    fps = round(1 / (env_dt["physics_dt"] * env_dt["decimation"]))
+    assert len(frames) == 41 and video.get_meta_data()["fps"] == fps and frames[0].ndim == 3, "a frame per env step"
 
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(run / "play" / "cartpole.usda"))
-    assert stage.GetEndTimeCode() == 40 and stage.GetTimeCodesPerSecond() == 60
+    assert stage.GetEndTimeCode() == 40 and stage.GetTimeCodesPerSecond() == fps
     assert UsdGeom.GetStageUpAxis(stage) == "Z"
     moving = {"orient": 0, "translate": 0}
     bodies = [UsdGeom.Xformable(p) for p in stage.Traverse() if p.GetChildren()
@@ -215,7 +218,7 @@ def test_help_documents_flags_and_config_fields():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--num-envs", "0"], "error: invalid config: num_envs: Input should be greater than or equal to 1 (got 0)"),
+    (["--num-envs", "0"], "error: invalid config: env.num_envs: Input should be greater than or equal to 1 (got 0)"),
     (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
     (["--config", "nonexistent"], "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
@@ -225,7 +228,7 @@ def test_help_documents_flags_and_config_fields():
                                                 "greater than 0 (got -1.0)"),
     (["--agent.actor.activation", "foo"], "foo"),
     (["--num-envs", "2147483648"], "error: num_envs=2,147,483,648 would need about"),
-    (["--env.task.reset-dist-m", "-1"], "error: invalid config: task.reset_dist_m: Input should be greater than 0"),
+    (["--env.task.reset-dist-m", "-1"], "error: invalid config: env.task.reset_dist_m: Input should be greater than 0"),
     (["--env.task.episode-length-s", "inf"], "task.episode_length_s: Input should be a finite number"),
     (["--agent.algorithm.gamma", "2"], "agent.algorithm.gamma: Input should be less than or equal to 1"),
     (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "

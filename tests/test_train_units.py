@@ -9,7 +9,6 @@ import io
 import math
 import os
 import time
-import typing
 
 import pytest
 import torch
@@ -21,7 +20,7 @@ from cartpole_warp import tasks
 from cartpole_warp.config import ConfigError
 from cartpole_warp.evaluation import EpisodeStats, EpisodeSummary
 from cartpole_warp.files import atomic_write
-from cartpole_warp.rl.config import RunnerConfig, TrainConfig, train_config
+from cartpole_warp.rl.config import RunnerConfig, train_config
 from cartpole_warp.rl.curve import plot_learning_curve
 from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.rl.runs import (

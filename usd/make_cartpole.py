@@ -59,8 +59,9 @@ at +-1.8 m (4 mm deep under the full 10 N) instead of bouncing back, as dm_contr
 (damping ratio 1) makes it; Newton's default limit (1e4 N/m, 10 N s/m) is damped 5% of critical and throws the cart
 back at nearly its speed. Soft enough for an explicit 0.01 s step."""
 MUJOCO_SOLREFLIMIT = (0.02, 1.0)
-"""MuJoCo's default limit solref (time constant 0.02 s, damping ratio 1) for SolverMuJoCo, which reads ``mjc:`` attributes
-rather than Newton's limit spring (from that spring it makes a softer constraint: the cart went 0.7 m past 1.8 m)."""
+"""MuJoCo's default limit solref (time constant 0.02 s, damping ratio 1) for SolverMuJoCo, which reads ``mjc:``
+attributes rather than Newton's limit spring (from that spring it makes a softer constraint: the cart went 0.7 m past
+1.8 m)."""
 RAIL_MASS_KG = 1.0
 """The rail is fixed to the world, so its mass never enters the dynamics."""
 
@@ -157,7 +158,8 @@ DMC = Cartpole(rail=Box(DMC_RAIL_SIZE_M), cart=Box(DMC_CART_SIZE_M), cart_mass_k
                pole_com_above_hinge_m=DMC_POLE_LENGTH_M / 2, hinge_offset_from_cart_m=0.0,
                cart_travel_limit_m=DMC_CART_TRAVEL_LIMIT_M, colors=DMC_COLORS,
                cart_limit_stiffness_n_m=DMC_LIMIT_STIFFNESS_N_M,
-               cart_limit_damping_n_s_m=2.0 * math.sqrt(DMC_LIMIT_STIFFNESS_N_M * (DMC_CART_MASS_KG + DMC_POLE_MASS_KG)))
+               cart_limit_damping_n_s_m=2.0 * math.sqrt(DMC_LIMIT_STIFFNESS_N_M
+                                                        * (DMC_CART_MASS_KG + DMC_POLE_MASS_KG)))
 
 
 def _body(stage, path, translate, shape, shape_center, mass_kg, color):

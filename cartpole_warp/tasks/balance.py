@@ -11,7 +11,7 @@ import warp as wp
 from ..config import Finite, NonNegative, Positive, require
 from ..env import END_NONE, FIRST_TASK_END, TaskFunctions, kernel_params
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartpoleTaskEnv
+from .cartpole import CartpoleConfig, CartpoleTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 POLE_FELL = wp.constant(FIRST_TASK_END + 1)
@@ -86,11 +86,6 @@ def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
     return wp.vec2(cart_pos, pole_angle), wp.vec2(cart_vel, pole_vel)
 
 
-@wp.func
-def joint_forces(action: wp.types.vector(1, float), p: Params):
-    return wp.vec2(p.max_push_effort_n * action[0], 0.0)
-
-
 class CartpoleBalanceEnv(CartpoleTaskEnv):
     """Batched cartpole, the Isaac Sim "Custom RL Example using Stable Baselines" task.
 
@@ -113,7 +108,7 @@ class CartpoleBalanceEnv(CartpoleTaskEnv):
     stage = "cartpole.usda"
     task_ends = ("cart_out_of_range", "pole_fell")
     functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset,
-                              joint_forces=joint_forces)
+                              joint_forces=push_cart)
 
 
 TASK = register(Task(

@@ -4,8 +4,10 @@ and an env base whose joint roles are the cart (prismatic) and the pole (revolut
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import newton
+import warp as wp
 
 from ..config import Name, NonNegative, TaskConfig
 from ..env import BatchedEnv
@@ -22,6 +24,13 @@ class CartpoleConfig(TaskConfig):
     """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
     max_push_effort_n: NonNegative = 400.0
     """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
+
+
+@wp.func
+def push_cart(action: wp.types.vector(1, float), p: Any):
+    """``TaskFunctions.joint_forces`` of a cart-pole task: max_push_effort_n * action on the cart, nothing on the pole
+    (generic over the task's params struct)."""
+    return wp.vec2(p.max_push_effort_n * action[0], 0.0)
 
 
 class CartpoleTaskEnv(BatchedEnv):

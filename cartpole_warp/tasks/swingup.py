@@ -11,7 +11,7 @@ import warp as wp
 from ..config import NonNegative, Positive
 from ..env import END_NONE, TaskFunctions, kernel_params
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartpoleTaskEnv
+from .cartpole import CartpoleConfig, CartpoleTaskEnv, push_cart
 
 
 @dataclass
@@ -79,11 +79,6 @@ def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
     return wp.vec2(cart_pos, pole_angle), wp.vec2(cart_vel, pole_vel)
 
 
-@wp.func
-def joint_forces(action: wp.types.vector(1, float), p: Params):
-    return wp.vec2(p.max_push_effort_n * action[0], 0.0)
-
-
 class CartpoleSwingupEnv(CartpoleTaskEnv):
     """Batched cart-pole swing-up, dm_control's ``cartpole.swingup`` with its smooth reward.
 
@@ -108,7 +103,7 @@ class CartpoleSwingupEnv(CartpoleTaskEnv):
     num_obs = 5
     stage = "cartpole_dmc.usda"
     functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset,
-                              joint_forces=joint_forces)
+                              joint_forces=push_cart)
 
 
 TASK = register(Task(

@@ -84,7 +84,8 @@ def variant_flags(variant: str) -> list[str]:
 
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     """One training run (and play) in a subprocess; its summary.json is the result."""
-    flags = ["--task", args.task, *variant_flags(variant), "--seed", str(seed), "--device", args.device, "--num-envs", str(args.num_envs),
+    flags = ["--task", args.task, *variant_flags(variant), "--seed", str(seed), "--device", args.device,
+             "--num-envs", str(args.num_envs),
              *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
              "--logger", "none", "--log-dir", str(log_dir),
              *(["--stop-when-solved"] if args.stop_when_solved else [])]

@@ -96,7 +96,8 @@ class Geometry:
             extent = np.ptp(_quat_rotate(widest.local_transform[3:], widest.points_m), axis=0)
             across.sort(key=lambda axis: -extent[axis])
         self.view_axes = (across[0], up)
-        """World axes drawn to the right (the widest shape's long axis, e.g. the rail) and upwards (the model's up axis)."""
+        """World axes drawn to the right (the widest shape's long axis, e.g. the rail) and upwards (the model's up
+        axis)."""
 
     def body_transforms(self, state: newton.State) -> np.ndarray:
         """(bodies, 7) world transforms of the env's bodies, from the state's joint coordinates."""
@@ -105,8 +106,8 @@ class Geometry:
 
     def outlines(self, transforms: np.ndarray) -> list[tuple[Shape, np.ndarray]]:
         """Each shape with its outline points (k, 2) in view coordinates (right, up; m) for body ``transforms``."""
-        return [(shape, self.shape_points(shape, transforms[shape.body] if shape.body >= 0 else None)[:, self.view_axes])
-                for shape in self.shapes]
+        return [(shape, self.shape_points(shape, transforms[shape.body] if shape.body >= 0 else None)
+                 [:, self.view_axes]) for shape in self.shapes]
 
     def shape_points(self, shape: Shape, body_transform: np.ndarray | None) -> np.ndarray:
         """(k, 3) world outline points of a shape given its body's transform (None for a static shape)."""

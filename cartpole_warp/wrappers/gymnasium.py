@@ -141,7 +141,8 @@ class CartpoleVectorEnv(VectorEnv):
     Same-step autoreset (``metadata["autoreset_mode"]``): an env that ends returns the first observation of
     its next episode. On steps where any env ended, ``info`` holds (gymnasium 1.x convention):
 
-    - ``final_obs`` (N, num_obs) float32, the observations at which episodes ended, valid where ``_final_obs`` (N,) bool;
+    - ``final_obs`` (N, num_obs) float32, the observations at which episodes ended, valid where ``_final_obs`` (N,)
+      bool;
     - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of the env's ``end_reasons``),
       each with its ``_key`` mask}, valid where ``_final_info``.
 

@@ -1,0 +1,122 @@
+"""The task seam: the registry finds the task modules, builds any task by name, names the known ones when asked for an
+unknown one, and a task defined outside the package (one module's worth: settings, Warp functions, env class,
+``register``) trains, plays and reaches gymnasium with no machinery file touched."""
+
+import math
+from dataclasses import dataclass
+
+import gymnasium as gym
+import pytest
+import torch
+import warp as wp
+
+from cartpole_warp import tasks
+from cartpole_warp.config import ConfigError, NonNegative
+from cartpole_warp.env import END_NONE, TaskFunctions, kernel_params
+from cartpole_warp.evaluation import rollout
+from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.tasks.cartpole import CartpoleConfig, CartpoleTaskEnv
+from cartpole_warp.wrappers.gymnasium import register_envs
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+
+def test_the_registry_finds_both_cartpole_tasks_and_names_the_known_ones():
+    assert tasks.names()[:2] == ["cartpole-balance", "cartpole-swingup"]
+    with pytest.raises(ConfigError, match="unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
+                                          "cartpole-swingup"):
+        tasks.make("cartpole-moonwalk")
+    balance, swingup = (tasks.make(name, num_envs=2) for name in ("cartpole-balance", "cartpole-swingup"))
+    assert (balance.num_obs, swingup.num_obs) == (4, 5) and type(balance) is not type(swingup)
+    assert swingup.max_episode_length == 500 and balance.max_episode_length == 600
+
+
+def test_a_preset_for_another_task_is_refused(tmp_path):
+    preset = tmp_path / "swing.yaml"
+    preset.write_text("task: cartpole-swingup\nagent:\n  max_iterations: 3\n")
+    assert train_config("cartpole-swingup", str(preset)).agent.max_iterations == 3
+    with pytest.raises(ConfigError, match="is for task 'cartpole-swingup', not 'cartpole-balance'"):
+        train_config("cartpole-balance", str(preset))
+
+
+@dataclass
+class HoldStillConfig(CartpoleConfig):
+    """A third task written as a newcomer would: keep the cart at the centre, the pole hanging still."""
+
+    max_push_effort_n: NonNegative = 20.0
+    """Cart force (N) for action 1."""
+
+
+Params = kernel_params(HoldStillConfig)
+
+
+@wp.func
+def observe(q: wp.vec2, qd: wp.vec2, p: Params):
+    return wp.vec3(q[0], qd[0], qd[1])
+
+
+@wp.func
+def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Params):
+    return wp.exp(-q[0] * q[0] - qd[1] * qd[1]), END_NONE
+
+
+@wp.func
+def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
+    s = rng_state[env]
+    start = wp.vec2(wp.randf(s, -0.5, 0.5), wp.pi)
+    rng_state[env] = s
+    return start, wp.vec2(0.0, 0.0)
+
+
+@wp.func
+def joint_forces(action: wp.types.vector(1, float), p: Params):
+    return wp.vec2(p.max_push_effort_n * action[0], 0.0)
+
+
+class HoldStillEnv(CartpoleTaskEnv):
+    """observation (N, 3) [cart_pos, cart_vel, pole_vel]; reward exp(-cart_pos^2 - pole_vel^2); never terminates."""
+
+    config_class = HoldStillConfig
+    params_type = Params
+    num_obs = 3
+    stage = "cartpole_dmc.usda"
+    functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=joint_forces)
+
+
+HOLD_STILL = tasks.Task(name="test-hold-still", env_class=HoldStillEnv, summary="hold the cart at the centre",
+                        solved=tasks.SolvedRule(min_reward_per_step=0.5), play_metric="mean_reward_per_step",
+                        defaults={"env": {"task": {"episode_length_s": 1.0}}, "agent": {"max_iterations": 2}},
+                        gym_ids={"cartpole_warp/TestHoldStill-v0": None})
+
+
+@pytest.fixture
+def hold_still(monkeypatch):
+    """The third task registered for one test (the registry is restored after it)."""
+    monkeypatch.setitem(tasks._TASKS, HOLD_STILL.name, HOLD_STILL)
+    yield HOLD_STILL.name
+    gym.registry.pop("cartpole_warp/TestHoldStill-v0", None)
+
+
+def test_a_task_from_outside_the_package_builds_trains_plays_and_reaches_gymnasium(hold_still):
+    assert hold_still in tasks.names()
+    env = tasks.make(hold_still, num_envs=64, seed=0)
+    obs, _ = env.reset()
+    assert obs.shape == (64, 3) and torch.allclose(obs[:, 1:], torch.zeros(64, 2))
+    assert env.max_episode_length == 60 and env.end_reasons == ("running", "time_limit", "nonfinite_state")
+
+    cfg = train_config(hold_still)
+    cfg.env.num_envs = 64
+    assert cfg.experiment == hold_still and cfg.agent.max_iterations == 2
+    runner = CartpoleRunner(RslRlVecEnv(tasks.get(hold_still).env_class(cfg.env)), cfg.validate(), None)
+    runner.learn(2)
+    assert runner.progress.iterations == 2
+    stats = rollout(env, runner.policy(), steps=60)
+    assert stats.episodes == 64 and stats.time_limit_fraction == 1.0
+    assert 0.0 < stats.mean_reward_per_step <= 1.0 and math.isfinite(stats.mean_return)
+
+    register_envs()
+    single = gym.make("cartpole_warp/TestHoldStill-v0")
+    assert single.observation_space.shape == (3,) and single.action_space.shape == (1,)
+    obs, _ = single.reset(seed=1)
+    assert obs.shape == (3,)
+    single.close()
