@@ -94,7 +94,7 @@ class CartpoleGymEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"]}
 
-    def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = "tutorial", device: str = "cpu",
+    def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str = "cpu",
                  seed: int | None = None, render_mode: str | None = None, **overrides):
         self.core = tasks.make(task_name, num_envs=1, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
