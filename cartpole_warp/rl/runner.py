@@ -197,8 +197,9 @@ class CartpoleRunner(OnPolicyRunner):
         limit = self.env.max_episode_length
         if stats.episodes:
             dt = self.train_cfg.env.sim.env_dt
-            full = (f" (full {stats.full_reward_per_step:5.3f})" if stats.full_episodes
-                    else "").ljust(13) if self.solved_rule.full_episodes_only else ""
+            full = ""
+            if self.solved_rule.full_episodes_only:  # the rule's own figure, padded so the columns stay aligned
+                full = (f" (full {stats.full_reward_per_step:5.3f})" if stats.full_episodes else "").ljust(13)
             episodes = (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {stats.mean_length * dt:5.2f} s "
                         f"({stats.mean_length:5.0f}/{limit}) | {stats.episodes:5d} ep")
         else:
