@@ -49,6 +49,10 @@ Flag = Annotated[bool, pydantic.Strict()]
 Name = Annotated[str, pydantic.Field(min_length=1)]
 Seed = Annotated[int, pydantic.Strict(), pydantic.Field(ge=0, le=2**31 - 1 - 4096)]
 """A non-negative int32 (the kernels take it as one; torchrun adds the rank)."""
+Range = tuple[Finite, Finite]
+"""(low, high): a uniform draw from [low, high]; low == high fixes the value."""
+Randomize = Literal["reset", "startup"]
+"""When each env's physics is drawn: at each of its episode starts, or once (at construction and ``reset()``)."""
 
 NO_UNKNOWN_KEYS = pydantic.ConfigDict(extra="forbid")
 """pydantic setting of every config dataclass: a dict (preset, saved config) with an unknown key is an error."""
@@ -89,6 +93,63 @@ class SimConfig:
 
 
 @dataclass
+class RandomizationConfig:
+    """Domain randomization: each env draws its own physics from these ranges with its own RNG (seeded by ``seed``).
+    Empty by default: every env simulates the stage as authored. A per-role entry is keyed by the task's joint role
+    ('cart', 'pole', ...) and changes the body that role's joint moves (or the joint itself)."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    at: Randomize = "reset"
+    """'reset': each env draws new physics at every episode start; 'startup': once, when the env is built and on
+    every ``reset()``."""
+    mass_scale: dict[str, Range] = field(default_factory=dict)
+    """Per role: factor on the mass of the role's body, and on its inertia (same shape, other density)."""
+    com_offset_m: dict[str, Range] = field(default_factory=dict)
+    """Per role: shift (m) of the body's centre of mass along the line from its joint to it (the inertia about the
+    centre of mass stays; the inertia about the joint follows)."""
+    joint_damping: dict[str, Range] = field(default_factory=dict)
+    """Per role: viscous damping of the joint (N s/m for a slider, N m s/rad for a hinge), applied by the solver."""
+    joint_friction: dict[str, Range] = field(default_factory=dict)
+    """Per role: Coulomb friction of the joint (N or N m), -friction * tanh(velocity / 0.01) applied before each
+    physics step."""
+    actuator_scale: Range | None = None
+    """Factor on the task's joint forces (the actuator strength; 1 is the task's own)."""
+    gravity_m_s2: Range | None = None
+    """Gravity's magnitude (m/s^2), along the stage's gravity direction."""
+    action_delay_steps: NonNegativeInt = 0
+    """Each env applies the action of d env steps ago, d drawn from {0, ..., this}; no force before the first."""
+    obs_noise_std: NonNegative = 0.0
+    """Standard deviation of the Gaussian noise added to every observation element (in its units)."""
+
+    @property
+    def on(self) -> bool:
+        """Whether anything is randomized."""
+        return self != RandomizationConfig(at=self.at)
+
+    def validate(self, roles: tuple[str, ...]) -> None:
+        """ConfigError for a range with low > high, out of its bounds, or keyed by a role the task does not have."""
+        per_role = {"mass_scale": 0.0, "com_offset_m": None, "joint_damping": 0.0, "joint_friction": 0.0}
+        for name, low_bound in per_role.items():
+            for role, bounds in getattr(self, name).items():
+                require(role in roles, f"randomization.{name}: unknown joint role {role!r}; this task's roles: "
+                                       f"{', '.join(roles)}")
+                check_range(f"randomization.{name}.{role}", bounds, low_bound, strict=name == "mass_scale")
+        for name in ("actuator_scale", "gravity_m_s2"):
+            if getattr(self, name) is not None:
+                check_range(f"randomization.{name}", getattr(self, name), 0.0, strict=False)
+
+
+def check_range(key: str, bounds: tuple[float, float], low_bound: float | None, strict: bool):
+    """ConfigError unless ``low <= high`` and ``low`` is above ``low_bound`` (``strict``) or at least it."""
+    low, high = bounds
+    require(low <= high, f"{key}: low {low:g} is above high {high:g}")
+    if low_bound is not None:
+        ok = low > low_bound if strict else low >= low_bound
+        require(ok, f"{key}: low {low:g} must be {'>' if strict else '>='} {low_bound:g}")
+
+
+@dataclass
 class TaskConfig:
     """What every task's settings hold; a task module subclasses it with its own fields (every float field reaches
     the task's Warp functions under its own name, see ``env.kernel_params``)."""
@@ -120,6 +181,7 @@ class EnvConfig(Generic[TaskT]):
     """Seed of the per-env reset RNG (and of torch in train.py; seed + rank under torchrun); the same seed gives the
     same trajectory."""
     sim: SimConfig = field(default_factory=SimConfig)
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     task: TaskT = None  # type: ignore[assignment]  # the task's settings: always given (tasks.env_config builds it)
 
     @property

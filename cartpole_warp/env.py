@@ -1,11 +1,12 @@
 """``BatchedEnv``: the machinery of a batched env on Newton and Warp, robot-agnostic. A task subclasses it with its
 sizes, its stage and joint roles, and four Warp functions (``TaskFunctions``); everything else lives here.
 
-One env step: clip actions to [-1, 1] -> joint forces of the task -> ``decimation`` solver steps -> observe, reward and
-end reason of the task -> time limit, returns and lengths, keep the final observation -> masked reset of the ended envs
-from the task's reset sampler. All of it is Warp work on persistent arrays, captured once as a graph per CPU shard (or
-on CUDA) and replayed. The kernels are built from the task's functions once per task (Warp closures) and compiled into
-one module per task.
+One env step: clip actions to [-1, 1] -> joint forces of the task (of the action d steps ago, times the actuator scale,
+with domain randomization) -> ``decimation`` solver steps (each after the joints' friction) -> observe, reward and end
+reason of the task -> time limit, returns and lengths, keep the final observation -> masked reset of the ended envs
+from the task's reset sampler -> new physics for them (``randomization``). All of it is Warp work on persistent arrays,
+captured once as a graph per CPU shard (or on CUDA) and replayed. The kernels are built from the task's functions once
+per task (Warp closures) and compiled into one module per task.
 """
 
 import abc
@@ -21,6 +22,7 @@ import warp as wp
 
 from .config import EnvConfig, TaskConfig
 from .files import data_path
+from .randomization import Physics, add_friction
 from .runtime import Shard, ShardedStep, TorchOrder, resolve_device, shard_bounds
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene
 
@@ -111,8 +113,20 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         return ok
 
     @wp.func
-    def begin_episode(env: int, q: Joints, qd: Joints, p: Params, base: int, dofs_per_env: int,
-                      role_dofs: wp.array(dtype=int), joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
+    def noisy(o: Obs, noise_std: float, rng_state: wp.array(dtype=wp.uint32), env: int):
+        """``o`` plus Gaussian noise of ``noise_std`` per element (none, and no draw, at 0)."""
+        out = o
+        if noise_std > 0.0:
+            s = rng_state[env]
+            for i in range(env_class.num_obs):
+                out[i] = out[i] + noise_std * wp.randn(s)
+            rng_state[env] = s
+        return out
+
+    @wp.func
+    def begin_episode(env: int, q: Joints, qd: Joints, p: Params, noise_std: float, base: int, dofs_per_env: int,
+                      role_dofs: wp.array(dtype=int), rng_state: wp.array(dtype=wp.uint32),
+                      joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
                       last_q: wp.array(dtype=Joints), last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs),
                       episode_length: wp.array(dtype=wp.int32), steps_run: wp.array(dtype=wp.int32),
                       episode_return: wp.array(dtype=float)):
@@ -124,16 +138,20 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
             joint_qd[base + role_dofs[r]] = qd[r]
         last_q[env] = q
         last_qd[env] = qd
-        obs[env] = fns.observe(q, qd, p)
+        obs[env] = noisy(fns.observe(q, qd, p), noise_std, rng_state, env)
         episode_length[env] = 0
         steps_run[env] = 0
         episode_return[env] = 0.0
 
     @kernel
-    def apply_actions(p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int), actions: wp.array(dtype=Actions),
-                      joint_f: wp.array(dtype=float), nonfinite_action_count: wp.array(dtype=wp.int32)):
-        """Clip each action to [-1, 1] in place (a non-finite one becomes 0 and is counted), then write the task's
-        joint forces."""
+    def apply_actions(p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int),
+                      steps_run: wp.array(dtype=wp.int32), delay: wp.array(dtype=wp.int32),
+                      actuator_scale: wp.array(dtype=float), actions: wp.array(dtype=Actions),
+                      action_history: wp.array2d(dtype=Actions), joint_f: wp.array(dtype=float),
+                      actuator_f: wp.array2d(dtype=float), nonfinite_action_count: wp.array(dtype=wp.int32)):
+        """Clip each action to [-1, 1] in place (a non-finite one becomes 0 and is counted), keep it in the env's
+        action history, then write the task's joint forces for the action ``delay`` steps ago (none before the
+        episode's first), times ``actuator_scale``."""
         env = wp.tid()
         a = actions[env]
         finite = True
@@ -145,10 +163,17 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         for i in range(num_actions):
             a[i] = wp.clamp(a[i], -1.0, 1.0)
         actions[env] = a
-        forces = fns.joint_forces(a, p)
+        slots = action_history.shape[1]
+        step = steps_run[env]
+        action_history[env, step % slots] = a
+        applied = Actions()
+        if step >= delay[env]:
+            applied = action_history[env, (step - delay[env]) % slots]
+        forces = fns.joint_forces(applied, p) * actuator_scale[env]
         base = env * dofs_per_env
         for r in range(num_joints):
             joint_f[base + role_dofs[r]] = forces[r]
+            actuator_f[env, r] = forces[r]
 
     @kernel
     def random_actions(rng_state: wp.array(dtype=wp.uint32), actions: wp.array(dtype=Actions)):
@@ -162,8 +187,8 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         actions[env] = a
 
     @kernel
-    def finish_step(p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int), max_episode_length: int,
-                    actions: wp.array(dtype=Actions), rng_state: wp.array(dtype=wp.uint32),
+    def finish_step(p: Params, noise_std: float, dofs_per_env: int, role_dofs: wp.array(dtype=int),
+                    max_episode_length: int, actions: wp.array(dtype=Actions), rng_state: wp.array(dtype=wp.uint32),
                     joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
                     last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
                     steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float),
@@ -187,7 +212,7 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         r = float(0.0)  # noqa: UP018 (a Warp variable that the branch below assigns, not a constant)
         reason = END_NONE
         if all_finite(q, qd):
-            o = fns.observe(q, qd, p)
+            o = noisy(fns.observe(q, qd, p), noise_std, rng_state, env)
             r, reason = fns.evaluate(q, qd, a, p)
         else:
             unused, reason = fns.evaluate(last_q[env], last_qd[env], a, p)
@@ -213,12 +238,13 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
             ended_return[env] = ret
             ended_length[env] = steps
             q0, qd0 = fns.sample_reset(rng_state, env, p)
-            begin_episode(env, q0, qd0, p, base, dofs_per_env, role_dofs, joint_q, joint_qd, last_q, last_qd, obs,
-                          episode_length, steps_run, episode_return)
+            begin_episode(env, q0, qd0, p, noise_std, base, dofs_per_env, role_dofs, rng_state, joint_q, joint_qd,
+                          last_q, last_qd, obs, episode_length, steps_run, episode_return)
 
     @kernel
-    def reset_masked(mask: wp.array(dtype=wp.bool), p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int),
-                     rng_state: wp.array(dtype=wp.uint32), joint_q: wp.array(dtype=float),
+    def reset_masked(mask: wp.array(dtype=wp.bool), p: Params, noise_std: float, dofs_per_env: int,
+                     role_dofs: wp.array(dtype=int), rng_state: wp.array(dtype=wp.uint32),
+                     joint_q: wp.array(dtype=float),
                      joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints), last_qd: wp.array(dtype=Joints),
                      obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
                      steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float)):
@@ -226,12 +252,13 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         env = wp.tid()
         if mask[env]:
             q, qd = fns.sample_reset(rng_state, env, p)
-            begin_episode(env, q, qd, p, env * dofs_per_env, dofs_per_env, role_dofs, joint_q, joint_qd, last_q,
-                          last_qd, obs, episode_length, steps_run, episode_return)
+            begin_episode(env, q, qd, p, noise_std, env * dofs_per_env, dofs_per_env, role_dofs, rng_state, joint_q,
+                          joint_qd, last_q, last_qd, obs, episode_length, steps_run, episode_return)
 
     @kernel
     def set_states_masked(states: wp.array(dtype=State), mask: wp.array(dtype=wp.bool), p: Params,
-                          dofs_per_env: int, role_dofs: wp.array(dtype=int), joint_q: wp.array(dtype=float),
+                          noise_std: float, dofs_per_env: int, role_dofs: wp.array(dtype=int),
+                          rng_state: wp.array(dtype=wp.uint32), joint_q: wp.array(dtype=float),
                           joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
                           last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs),
                           episode_length: wp.array(dtype=wp.int32), steps_run: wp.array(dtype=wp.int32),
@@ -244,8 +271,8 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
             for r in range(num_joints):
                 q[r] = s[2 * r]
                 qd[r] = s[2 * r + 1]
-            begin_episode(env, q, qd, p, env * dofs_per_env, dofs_per_env, role_dofs, joint_q, joint_qd, last_q,
-                          last_qd, obs, episode_length, steps_run, episode_return)
+            begin_episode(env, q, qd, p, noise_std, env * dofs_per_env, dofs_per_env, role_dofs, rng_state, joint_q,
+                          joint_qd, last_q, last_qd, obs, episode_length, steps_run, episode_return)
 
     return SimpleNamespace(Joints=Joints, Actions=Actions, Obs=Obs, State=State, apply_actions=apply_actions,
                            random_actions=random_actions, finish_step=finish_step, reset_masked=reset_masked,
@@ -267,6 +294,9 @@ class BatchedEnv(abc.ABC):
 
     On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
     (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
+
+    Each env simulates its own physical parameters (``physical_params()``): the stage's, or drawn by the config's
+    ``randomization`` at each episode start (or once), or set by ``set_physical_params``.
     """
 
     config_class: ClassVar[type[TaskConfig]]
@@ -298,15 +328,20 @@ class BatchedEnv(abc.ABC):
         self._kernels = build_kernels(type(self))
         stage = Path(cfg.sim.stage_path) if cfg.sim.stage_path else data_path("usd", self.stage)
         joints = self.joints(cfg.task)
+        cfg.randomization.validate(self.joint_roles)
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
         self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
                        for i, (start, stop) in enumerate(bounds)]
         self.params = params_of(self.params_type, cfg.task)
         self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
         self._order = TorchOrder(self.device)
+        self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
+                               self.num_envs, self.device)
+        """The per-env physical parameters and their draws."""
+        self._noise_std = float(cfg.randomization.obs_noise_std)
         self._allocate()
         self._seed(cfg.seed)
-        self._launch_reset(self._all_envs)
+        self._reset_all()
         self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
 
     @property
@@ -322,6 +357,8 @@ class BatchedEnv(abc.ABC):
 
         self._rng_state = buf(wp.uint32)
         self._actions = buf(k.Actions)
+        self._action_history = buf(k.Actions, (n, self.cfg.randomization.action_delay_steps + 1))
+        self._actuator_f = buf(float, (n, len(self.joint_roles)))
         self._obs = buf(k.Obs)
         self._final_obs = buf(k.Obs)
         self._last_q = buf(k.Joints)
@@ -372,11 +409,25 @@ class BatchedEnv(abc.ABC):
         self._episode_length_t.copy_(value)
 
     def _apply_actions(self, shard: Shard):
-        s = shard.scene
+        s, rows, physics = shard.scene, shard.rows, self.physics
         wp.launch(self._kernels.apply_actions, dim=shard.num_envs,
-                  inputs=[self.params, s.dofs_per_env, self._role_dofs],
-                  outputs=[shard.rows(self._actions), s.control.joint_f, shard.slot(self._nonfinite_actions)],
+                  inputs=[self.params, s.dofs_per_env, self._role_dofs, rows(self._steps_run), rows(physics.delay),
+                          rows(physics.actuator_scale)],
+                  outputs=[rows(self._actions), rows(self._action_history), s.control.joint_f, rows(self._actuator_f),
+                           shard.slot(self._nonfinite_actions)],
                   device=self.device)
+
+    def _simulate(self, shard: Shard):
+        """``decimation`` solver steps, each after the joints' friction where it is randomized."""
+        s = shard.scene
+        add_joint_friction = None
+        if self.physics.has_friction:
+            def add_joint_friction():
+                wp.launch(add_friction, dim=shard.num_envs,
+                          inputs=[s.dofs_per_env, self._role_dofs, shard.rows(self._actuator_f),
+                                  shard.rows(self.physics.friction), s.state_0.joint_qd],
+                          outputs=[s.control.joint_f], device=self.device)
+        s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation, add_joint_friction)
 
     def physics_step(self, shard: Shard):
         """Random actions in [-1, 1], the task's joint forces and ``decimation`` solver steps for one shard: an env step
@@ -384,15 +435,16 @@ class BatchedEnv(abc.ABC):
         wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(self._rng_state)],
                   outputs=[shard.rows(self._actions)], device=self.device)
         self._apply_actions(shard)
-        shard.scene.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
+        self._simulate(shard)
 
     def _step_kernels(self, shard: Shard):
         s, rows, k = shard.scene, shard.rows, self._kernels
         self._apply_actions(shard)
-        s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation)
+        self._simulate(shard)
         wp.launch(
             k.finish_step, dim=shard.num_envs,
-            inputs=[self.params, s.dofs_per_env, self._role_dofs, self.max_episode_length, rows(self._actions)],
+            inputs=[self.params, self._noise_std, s.dofs_per_env, self._role_dofs, self.max_episode_length,
+                    rows(self._actions)],
             outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._last_q),
                      rows(self._last_qd), rows(self._obs), rows(self._episode_length), rows(self._steps_run),
                      rows(self._episode_return), rows(self._reward), rows(self._terminated), rows(self._truncated),
@@ -400,6 +452,8 @@ class BatchedEnv(abc.ABC):
                      shard.slot(self._nonfinite_states)],
             device=self.device,
         )
+        if self.physics.drawn and self.cfg.randomization.at == "reset":
+            self.physics.draw(shard, self._rng_state, self._end_reason)
 
     def _episode_outputs(self, shard: Shard) -> list:
         s, rows = shard.scene, shard.rows
@@ -411,11 +465,15 @@ class BatchedEnv(abc.ABC):
             wp.launch(init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
                       outputs=[shard.rows(self._rng_state)], device=self.device)
 
-    def _launch_reset(self, mask: wp.array):
+    def _reset_all(self):
+        """A new episode in every env, and new physics where it is randomized."""
         for shard in self.shards:
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
-                      inputs=[shard.rows(mask), self.params, shard.scene.dofs_per_env, self._role_dofs],
+                      inputs=[shard.rows(self._all_envs), self.params, self._noise_std, shard.scene.dofs_per_env,
+                              self._role_dofs],
                       outputs=[shard.rows(self._rng_state), *self._episode_outputs(shard)], device=self.device)
+            if self.physics.drawn:
+                self.physics.draw(shard, self._rng_state, None)
 
     def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
         shape = " or ".join(str(tuple(s)) for s in shapes)
@@ -440,7 +498,7 @@ class BatchedEnv(abc.ABC):
         with self._order:
             if seed is not None:
                 self._seed(seed)
-            self._launch_reset(self._all_envs)
+            self._reset_all()
         return self.obs_buf.clone(), self._outputs()
 
     def step(self, actions: torch.Tensor):
@@ -471,9 +529,34 @@ class BatchedEnv(abc.ABC):
             for shard in self.shards:
                 wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
                           inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params,
-                                  shard.scene.dofs_per_env, self._role_dofs],
-                          outputs=self._episode_outputs(shard), device=self.device)
+                                  self._noise_std, shard.scene.dofs_per_env, self._role_dofs],
+                          outputs=[shard.rows(self._rng_state), *self._episode_outputs(shard)], device=self.device)
         return self.obs_buf.clone()
+
+    def physical_params(self) -> dict[str, torch.Tensor]:
+        """What each env simulates, in SI units: (N,) tensors named by what they are. Per joint role:
+        ``<role>_mass_kg`` of the body the role's joint moves, ``<role>_com_m`` (distance from the joint to that body's
+        centre of mass), ``<role>_inertia_kg_m2`` (about the centre of mass, around the joint's axis),
+        ``<role>_damping_n_s_m`` or ``_n_m_s_rad``, ``<role>_friction_n`` or ``_n_m``; then ``actuator_scale`` (on
+        the task's forces), ``gravity_m_s2``, ``action_delay_steps``, and the task's own (``task_physical_params``)."""
+        values = self.physics.values()
+        return values | self.task_physical_params(values)
+
+    def task_physical_params(self, values: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The task's own physical parameters, derived from the machinery's ``values`` (none by default)."""
+        return {}
+
+    def set_physical_params(self, **values: torch.Tensor):
+        """Set what the named envs simulate from now on: (N,) tensors on ``device`` in SI units, named as in
+        ``physical_params`` (derived values excepted); the others keep theirs. With randomization ``at='reset'``, an
+        env's next episode start draws anew."""
+        n = self.num_envs
+        for name, value in values.items():
+            self._check(name, value, ((n,),), value.dtype if isinstance(value, torch.Tensor) else torch.float32)
+        self.physics.set(values)
+        with self._order:
+            for shard in self.shards:
+                self.physics.write(shard)
 
     def close(self):
         """Stop the shard threads (the env cannot step afterwards)."""

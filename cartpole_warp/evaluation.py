@@ -86,28 +86,50 @@ def random_policy(num_actions: int, seed: int = 0) -> Policy:
     return policy
 
 
-def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None
-            ) -> EpisodeSummary:
-    """Reset ``env`` and run ``policy`` for ``steps`` env steps without gradients; ``on_step(k)`` is called after
-    the reset (k = 0) and after each step k (to record pictures).
+@dataclass
+class FirstEpisodes:
+    """Each env's first episode in a run: (N,) tensors on the env's device."""
 
-    Statistics cover each env's first episode; an episode still running after ``steps`` counts as having reached
-    the time limit and as full (the run's step cap), which only happens when ``steps`` < max_episode_length.
-    """
-    obs, _ = env.reset()
+    returns: torch.Tensor
+    lengths: torch.Tensor
+    """Env steps (the run's step cap for an episode still running at its end)."""
+    reached_limit: torch.Tensor
+    """bool: the episode reached the time limit (or the step cap) instead of failing."""
+
+    def summary(self, max_episode_length: int) -> EpisodeSummary:
+        """Means over the episodes (full: those of ``max_episode_length`` steps)."""
+        stats = EpisodeStats(self.returns.device, max_episode_length)
+        stats.add(torch.ones_like(self.reached_limit), self.returns, self.lengths, self.reached_limit)
+        return stats.summary()
+
+
+def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,
+                   reset: bool = True) -> FirstEpisodes:
+    """Reset ``env`` (unless ``reset`` is False: the episodes it has just begun) and run ``policy`` for ``steps`` env
+    steps without gradients; ``on_step(k)`` is called after the reset (k = 0) and after each step k (to record
+    pictures). An episode still running after ``steps`` counts as having reached the time limit."""
+    obs = env.reset()[0] if reset else env.get_observations()
     if on_step is not None:
         on_step(0)
-    stats = EpisodeStats(env.device, min(steps, env.max_episode_length))
     finished = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
+    reached = torch.ones_like(finished)
+    lengths = torch.full((env.num_envs,), steps, dtype=torch.int64, device=env.device)
     returns = torch.zeros(env.num_envs, dtype=torch.float32, device=env.device)
     with torch.inference_mode():
         for step in range(1, steps + 1):
             obs, reward, terminated, truncated, _ = env.step(policy(obs).to(torch.float32))
             returns += torch.where(finished, 0.0, reward)
             ended = (terminated | truncated) & ~finished
-            stats.add(ended, returns, torch.full_like(returns, step), truncated)
+            lengths = torch.where(ended, step, lengths)
+            reached = torch.where(ended, truncated, reached)
             finished |= ended
             if on_step is not None:
                 on_step(step)
-        stats.add(~finished, returns, torch.full_like(returns, steps), torch.ones_like(finished))
-    return stats.summary()
+    return FirstEpisodes(returns, lengths, reached)
+
+
+def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None
+            ) -> EpisodeSummary:
+    """``first_episodes`` summarised: statistics over each env's first episode; an episode still running after
+    ``steps`` counts as full (the run's step cap), which only happens when ``steps`` < max_episode_length."""
+    return first_episodes(env, policy, steps, on_step).summary(min(steps, env.max_episode_length))

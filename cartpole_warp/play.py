@@ -4,6 +4,7 @@
     python play.py --headless --task cartpole-swingup     # newest run of that task
     python play.py --headless --run DIR          # or --checkpoint FILE
     python play.py --agent zero --headless       # no checkpoint needed (also: random)
+    python play.py --headless --eval             # success rate over a grid of pole mass x actuator strength
     python play.py                               # Newton's interactive viewer (needs a display and the viz extra)
 
 The task and its env are rebuilt from the run's saved config.yaml (flags override it); the policy acts
@@ -14,14 +15,15 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Generic, Literal
 
 from . import tasks
 from .cli import asks_help, clean_errors, parse, peek, quiet_libraries
-from .config import ConfigError, EnvConfig, TaskT, require
+from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
 from .files import write_text
 from .rl.config import TrainConfig, checked, train_config
 from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_checkpoint, latest_run, load_config
@@ -61,6 +63,30 @@ class PlayArgs(Generic[TaskT]):
     """Env steps of env 0 in the MP4 (default: all the steps run); its frame rate is one frame per env step."""
     output: Path | None = None
     """Folder for the GIF, USD and result (default <run>/play, or <log-dir>/play/<agent>)."""
+    eval: bool = False
+    """With --headless, instead of the rollout: play --grid-episodes episodes in each cell of a grid of physical
+    parameters (factors on the stage's values, without the run's randomization) and write <output>/robustness.csv
+    and robustness.png (success: the time limit reached, and the task's reward per step where its rule asks)."""
+    grid_x: str = "pole_mass_kg"
+    """--eval: the parameter along the heatmap's x axis (a name of ``env.physical_params()``); its factors multiply
+    the stage's value, or are the values themselves where the stage's is 0 (damping, friction, action delay)."""
+    grid_x_factors: list[float] = field(default_factory=lambda: [0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0])
+    grid_y: str = "actuator_scale"
+    """--eval: the parameter along the y axis."""
+    grid_y_factors: list[float] = field(default_factory=lambda: [0.5, 0.6, 0.7, 0.85, 1.0, 1.15, 1.3, 1.5])
+    grid_z: str | None = None
+    """--eval: a third parameter; the table and heatmap show the worst over it (the CSV every cell)."""
+    grid_z_factors: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0])
+    grid_episodes: int = 64
+    """--eval: episodes per cell (one env each)."""
+
+    def grid(self) -> list:
+        """The --eval axes."""
+        from .robustness import Axis
+
+        named = [(self.grid_x, self.grid_x_factors), (self.grid_y, self.grid_y_factors),
+                 (self.grid_z, self.grid_z_factors)]
+        return [Axis(name, tuple(factors)) for name, factors in named if name is not None]
 
 
 def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
@@ -93,6 +119,18 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     require(args.video_length is None or args.video_length >= 1,
             f"--video-length must be >= 1, got {args.video_length}")
     cfg.env = args.env
+    if args.eval:
+        require(args.headless, "--eval runs headless: add --headless")
+        require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
+        require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
+        require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
+        axes = args.grid()
+        require(all(axis.factors and min(axis.factors) >= 0 for axis in axes),
+                "every --grid-*-factors list needs factors >= 0")
+        cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
+        delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
+        require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")
+        cfg.env.randomization = RandomizationConfig(at="startup", action_delay_steps=int(max(delays, default=0)))
     return args, checked(cfg).validate(), checkpoint
 
 
@@ -138,6 +176,8 @@ def play(argv: list[str]) -> int:
             policy = (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
                       else random_policy(env.num_actions, cfg.env.seed))
             print(f"policy: {args.agent}")
+        if args.eval:
+            return evaluate_robustness(args, cfg, env, policy, checkpoint)
         if not args.headless:
             from .viz.viewer import view_interactively
 
@@ -148,9 +188,7 @@ def play(argv: list[str]) -> int:
 
         has_limit = cfg.env.task.episode_length_s is not None
         steps = args.steps or (env.max_episode_length if has_limit else NO_LIMIT_STEPS)
-        output = args.output or (checkpoint.parent if checkpoint else Path(args.log_dir)) / PLAY_DIR
-        if not (args.output or checkpoint):
-            output = output / args.agent
+        output = output_dir(args, checkpoint)
         recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length)
         stats = rollout(env, policy, steps, on_step=recorder)
         pictures = recorder.close()
@@ -172,6 +210,31 @@ def play(argv: list[str]) -> int:
         print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
         if not video_available():
             print(f"no MP4: {VIDEO_EXTRA} adds it")
+    return 0
+
+
+def output_dir(args: PlayArgs, checkpoint: Path | None) -> Path:
+    """--output, or <run>/play, or <log-dir>/play/<agent>."""
+    if args.output:
+        return args.output
+    return checkpoint.parent / PLAY_DIR if checkpoint else Path(args.log_dir) / PLAY_DIR / args.agent
+
+
+def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy, checkpoint: Path | None) -> int:
+    """--eval: the grid's success rates, printed and written as CSV and PNG."""
+    from .robustness import evaluate_grid, format_table, plot_heatmap, write_table
+
+    axes = args.grid()
+    print(f"{cfg.task}: {args.grid_episodes} episodes in each of {env.num_envs // args.grid_episodes} cells "
+          f"({env.num_envs} envs) ...", flush=True)
+    result = evaluate_grid(env, policy, axes, args.grid_episodes, tasks.get(cfg.task).solved)
+    print(format_table(result))
+    output = output_dir(args, checkpoint)
+    who = f"{checkpoint.parent.name}/{checkpoint.name}" if checkpoint else f"{args.agent} policy"
+    table = write_table(output / "robustness.csv", result)
+    heatmap = plot_heatmap(output / "robustness.png", result,
+                           f"{cfg.task}: {who}\n{args.grid_episodes} episodes per cell")
+    print(f"wrote {table} and {heatmap}")
     return 0
 
 

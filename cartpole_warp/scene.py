@@ -8,6 +8,7 @@ lengths, inertias, limits, gravity) comes from the stage.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,13 +49,19 @@ class Scene:
     num_envs: int
     dofs_per_env: int
     """Joint coordinates (= DOFs, all movable joints being 1-DOF) of one robot."""
+    bodies_per_env: int
     role_dofs: list[int]
     """For each joint role, in the task's order, the index of its DOF inside one env's block of joint_q / joint_qd /
     joint_f."""
+    role_joints: list[int]
+    """For each joint role, the index of its joint in env 0 (the same inside every env's block)."""
 
-    def simulate(self, physics_dt: float, steps: int):
-        """Advance every env ``steps`` physics steps; the result ends in ``state_0`` (graph-capturable)."""
+    def simulate(self, physics_dt: float, steps: int, before_step: Callable[[], None] | None = None):
+        """Advance every env ``steps`` physics steps, calling ``before_step`` before each; the result ends in
+        ``state_0`` (graph-capturable)."""
         for _ in range(steps):
+            if before_step is not None:
+                before_step()
             self.solver.step(self.state_0, self.state_1, self.control, None, physics_dt)
             self.state_0, self.state_1 = self.state_1, self.state_0
         if steps % 2 == 1:
@@ -92,7 +99,7 @@ def pick_joint(labels: list[str], joint: JointRole) -> int:
 
 
 def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelBuilder, list[int]]:
-    """One robot from the stage: (builder, the DOF of each joint role). Each role's joint must be of its kind, every
+    """One robot from the stage: (builder, the joint of each joint role). Each role's joint must be of its kind, every
     other joint fixed."""
     path = Path(stage_path)
     if not path.is_file():
@@ -116,7 +123,7 @@ def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelB
     if others:
         roles = " and ".join(joint.role for joint in joints)
         raise StageError(f"stage {path}: only the {roles} joints may move, but it also has {', '.join(others)}")
-    return builder, [builder.joint_qd_start[index] for index in found]
+    return builder, found
 
 
 def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBase:
@@ -131,7 +138,7 @@ def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBas
 def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints: list[JointRole]) -> Scene:
     """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
     init_warp()
-    robot, role_dofs = load_robot(stage, joints)
+    robot, role_joints = load_robot(stage, joints)
     builder = newton.ModelBuilder()
     try:
         builder.replicate(robot, copy_count=num_envs)
@@ -139,7 +146,7 @@ def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints:
     except MemoryError:
         raise ConfigError(f"not enough memory for {num_envs:,} envs (about {num_envs * BYTES_PER_ENV / 1e9:,.1f} GB "
                           "while building them): use fewer") from None
-    return Scene(
+    scene = Scene(
         model=model,
         solver=make_solver(model, sim),
         state_0=model.state(),
@@ -147,5 +154,13 @@ def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints:
         control=model.control(),
         num_envs=num_envs,
         dofs_per_env=robot.joint_dof_count,
-        role_dofs=role_dofs,
+        bodies_per_env=robot.body_count,
+        role_dofs=[robot.joint_qd_start[index] for index in role_joints],
+        role_joints=role_joints,
     )
+    if model.device.is_cuda:
+        # The solver allocates its scratch arrays on its first step. Inside a CUDA graph capture that memory would be
+        # the graph's, unusable by other graphs or launches until the graph has replayed (an illegal memory access):
+        # take the first steps here, a whole env step so that the mass-matrix schedule keeps its phase.
+        scene.simulate(sim.physics_dt, sim.decimation)
+    return scene

@@ -75,15 +75,20 @@ def closed_form_rollout(state0, forces, dt, p, substeps=10):
     """RK4 of the rigid cart + rigid pole (Lagrange equations); force held constant over each dt.
 
     The pole angle theta turns about +X, so the pole's COM sits at (y, z) = (x - com sin theta, com cos theta).
+    Optional in ``p``: viscous damping of the cart (N s/m) and pole (N m s/rad) joints, and the cart's Coulomb
+    friction (N), smoothed as -friction tanh(cart_vel / 0.01 m/s).
     """
     M, m, com, inertia, g = p["cart_mass"], p["pole_mass"], p["com_length"], p["pole_inertia"], p["gravity"]
+    cart_damping, pole_damping = p.get("cart_damping", 0.0), p.get("pole_damping", 0.0)
+    cart_friction = p.get("cart_friction", 0.0)
 
     def deriv(s, force):
         x, xd, th, thd = s
         a11, a12 = M + m, -m * com * math.cos(th)
         a21, a22 = -m * com * math.cos(th), m * com * com + inertia
-        b1 = force - m * com * math.sin(th) * thd * thd
-        b2 = m * g * com * math.sin(th)
+        b1 = (force - m * com * math.sin(th) * thd * thd - cart_damping * xd
+              - cart_friction * math.tanh(xd / 0.01))
+        b2 = m * g * com * math.sin(th) - pole_damping * thd
         det = a11 * a22 - a12 * a21
         return np.array([xd, (b1 * a22 - a12 * b2) / det, thd, (a11 * b2 - a21 * b1) / det])
 
@@ -200,5 +205,47 @@ def test_trajectory_matches_closed_form(stage, solver, make):
         diff = newton_traj[:, i] - reference
         diff[:, 2] = np.angle(np.exp(1j * diff[:, 2]))  # the observed angle lies in (-pi, pi]
         err = np.abs(diff).max(axis=0)
+        scale = np.abs(reference).max(axis=0)
+        assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"
+
+
+RANDOMIZED = {"mass_scale": {"cart": [0.5, 2.0], "pole": [0.5, 2.0]}, "com_offset_m": {"pole": [-0.2, 0.2]},
+              "actuator_scale": [0.7, 1.3], "gravity_m_s2": [8.0, 11.0], "joint_damping": {"cart": [0.0, 2.0],
+                                                                                           "pole": [0.0, 0.2]},
+              "joint_friction": {"cart": [0.0, 1.0]}}
+
+
+@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+def test_randomized_envs_match_closed_form_each(solver, make):
+    """Six envs, each with its own drawn cart and pole mass, pole centre of mass, force per action, gravity, joint
+    damping and cart friction: 0.5 s of each matches the closed-form cart-pole with that env's own parameters, as
+    ``physical_params()`` reports them (the pole's inertia about its centre of mass: the stage's, scaled with the
+    mass)."""
+    num_envs, steps = 6, round(0.5 / PHYSICS_DT_S)
+    env = make(num_envs, seed=3, sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1,
+                                      "mass_matrix_interval": 1},
+               task={"episode_length_s": None, "reset_dist_m": 100.0, "max_pole_angle_rad": 100.0},
+               randomization=RANDOMIZED)
+    params = {k: v.cpu().numpy().astype(np.float64) for k, v in env.physical_params().items()}
+    stage = stage_parameters()
+    assert params["pole_inertia_kg_m2"] == pytest.approx(stage["pole_inertia"] * params["pole_mass_kg"], rel=1e-5)
+    assert np.ptp(params["pole_mass_kg"]) > 0.3 and np.ptp(params["pole_com_m"]) > 0.05, "the envs differ"
+    starts = torch.tensor([[0.1 * i - 0.2, 0.2, 0.15 - 0.05 * i, 0.3] for i in range(num_envs)])
+    env.set_state(starts.to(env.device))
+    commands = np.stack([0.05 * np.sin(2 * math.pi * 1.5 * np.arange(steps) * PHYSICS_DT_S + i)
+                         for i in range(num_envs)], axis=1)
+    trajectory = []
+    for k in range(steps):
+        obs, *_ = env.step(torch.tensor(commands[k], dtype=torch.float32, device=env.device).reshape(-1, 1))
+        trajectory.append(obs.cpu().numpy().astype(np.float64))
+    trajectory = np.array(trajectory)
+    for i in range(num_envs):
+        p = {"cart_mass": params["cart_mass_kg"][i], "pole_mass": params["pole_mass_kg"][i],
+             "com_length": params["pole_com_m"][i], "pole_inertia": params["pole_inertia_kg_m2"][i],
+             "gravity": params["gravity_m_s2"][i], "cart_damping": params["cart_damping_n_s_m"][i],
+             "pole_damping": params["pole_damping_n_m_s_rad"][i], "cart_friction": params["cart_friction_n"][i]}
+        forces = params["force_per_action_n"][i] * commands[:, i]
+        reference = closed_form_rollout(starts[i].numpy(), forces, PHYSICS_DT_S, p)
+        err = np.abs(trajectory[:, i] - reference).max(axis=0)
         scale = np.abs(reference).max(axis=0)
         assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"

@@ -2,6 +2,7 @@
 continues, play.py writes a GIF and a USD recording and fails clearly without a run, a display or a sane checkpoint,
 and a small configuration trains to "solved"."""
 
+import csv
 import json
 import os
 import re
@@ -112,6 +113,34 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
     np.testing.assert_allclose(onnx_actions, checkpoint, rtol=1e-5, atol=1e-6)
 
 
+def test_play_eval_writes_a_success_table_and_heatmap(trained):
+    """play.py --eval: a 2 x 2 grid of pole mass and actuator strength, 3 episodes per cell, for every task; the CSV
+    has one row per cell with the factors and a success rate, the PNG is a picture, the console shows the table."""
+    log_dir, run, _ = trained
+    task = yaml.safe_load((run / "config.yaml").read_text())["task"]
+    result = run_script("play.py", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-x-factors",
+                        "0.5", "2", "--grid-y-factors", "0.7", "1.3", "--grid-episodes", "3")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"{task}: 3 episodes in each of 4 cells (12 envs)" in result.stdout
+    assert re.search(r"x0\.7 +\d+% +\d+%", result.stdout), result.stdout
+    with open(run / "play" / "robustness.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["pole_mass_kg factor"], r["actuator_scale factor"]) for r in rows] == [
+        ("0.5", "0.7"), ("0.5", "1.3"), ("2", "0.7"), ("2", "1.3")]
+    assert all(round(float(r["success_rate"]) * 3, 3) in (0, 1, 2, 3) for r in rows), "a share of 3 episodes"
+    heatmap = Image.open(run / "play" / "robustness.png")
+    assert heatmap.format == "PNG" and heatmap.size[0] > 200 and heatmap.size[1] > 200
+
+
+def test_play_eval_refuses_unknown_parameters(trained):
+    log_dir, run, _ = trained
+    task = yaml.safe_load((run / "config.yaml").read_text())["task"]
+    result = run_script("play.py", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-x",
+                        "pole_length_m", "--grid-episodes", "1")
+    assert result.returncode != 0
+    assert "robustness axis 'pole_length_m' is not a settable physical parameter" in result.stderr
+
+
 def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained):
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
@@ -220,7 +249,8 @@ def test_help_documents_flags_and_config_fields():
 @pytest.mark.parametrize("args, message", [
     (["--num-envs", "0"], "error: invalid config: env.num_envs: Input should be greater than or equal to 1 (got 0)"),
     (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
-    (["--config", "nonexistent"], "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, tutorial"),
+    (["--config", "nonexistent"],
+     "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, robust, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),

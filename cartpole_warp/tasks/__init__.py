@@ -43,6 +43,13 @@ class SolvedRule:
         return (per_step >= self.min_reward_per_step
                 and summary.mean_length >= self.min_length_fraction * max_episode_length)
 
+    def episode_success(self, returns: Any, lengths: Any, reached_limit: Any) -> Any:
+        """Per episode (tensors): it reached the time limit and, for a rule over full-length episodes, its reward per
+        step (``returns / lengths``) meets the minimum."""
+        if not self.full_episodes_only:
+            return reached_limit
+        return reached_limit & (returns / lengths.clamp(min=1) >= self.min_reward_per_step)
+
     def describe(self, max_episode_length: int) -> str:
         """The rule in words."""
         episodes = "full-length episodes" if self.full_episodes_only else "finished episodes"

@@ -39,6 +39,10 @@ class CartpoleTaskEnv(BatchedEnv):
     joint_roles = ("cart", "pole")
     num_actions = 1
 
+    def task_physical_params(self, values: dict) -> dict:
+        """``force_per_action_n``: the cart force (N) of action 1."""
+        return {"force_per_action_n": self.cfg.task.max_push_effort_n * values["actuator_scale"]}
+
     def joints(self, task: CartpoleConfig) -> list[JointRole]:
         return [JointRole("cart", task.cart_joint, newton.JointType.PRISMATIC, "task.cart_joint"),
                 JointRole("pole", task.pole_joint, newton.JointType.REVOLUTE, "task.pole_joint")]

@@ -1,11 +1,13 @@
 """Throughput benchmark: env-steps/s of the physics alone and of the full env step, over a sweep of num_envs.
 
 Run: ``python -m cartpole_warp.tools.bench --device cpu [--task cartpole-swingup] [--num-envs 64 1024 4096]
-[--solver featherstone mujoco]``
+[--solver featherstone mujoco] [--randomization off robust]``
 
 "Physics alone" replays a captured graph of random actions -> the task's joint forces -> ``decimation`` solver steps
 (``BatchedEnv.physics_step``), without observations, rewards or resets; "full step" times ``env.step`` (action copy,
 captured step, output tensors). One env-step is one robot advanced by one env step (``decimation`` physics steps).
+``--randomization off robust`` measures both without and with a preset's domain randomization (its cost: the ratio
+of the two rows' full-step rates).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import warp as wp
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
-from ..config import Capture, ConfigError, EnvConfig, Solver
+from ..config import Capture, ConfigError, EnvConfig, Solver, load_preset
 from ..runtime import GraphReplay, resolve_device
 from ..scene import StageError
 
@@ -92,6 +94,9 @@ class BenchArgs:
     """sim.cpu_threads values to sweep on the CPU (0 = one per core)."""
     preset: str | None = None
     """Config preset of the env (None: the task's defaults)."""
+    randomization: list[str] = field(default_factory=lambda: ["off"])
+    """Domain randomization to measure: 'off' (the preset's own), or a preset whose ``env.randomization`` section
+    replaces it (e.g. 'robust')."""
     seconds: float = 2.0
     """Minimum timed seconds per figure."""
 
@@ -101,19 +106,22 @@ def main(argv: list[str] | None = None) -> int:
     with clean_errors(ConfigError, StageError):
         args = parse(BenchArgs, BenchArgs(), sys.argv[1:] if argv is None else argv, __doc__)
         sweep = args.num_envs or ([4096, 16384, 65536] if args.device.startswith("cuda") else [64, 1024, 4096])
-        sweeps = itertools.product(args.solver, args.capture, args.cpu_threads, sweep)
-        configs = [tasks.env_config(args.task, args.preset, num_envs=n, device=args.device, seed=0,
-                                    sim={"solver": solver, "capture": capture, "cpu_threads": threads})
-                   for solver, capture, threads, n in sweeps]
+        sweeps = itertools.product(args.solver, args.capture, args.cpu_threads, sweep, args.randomization)
+        configs = [(randomized, tasks.env_config(
+            args.task, args.preset, num_envs=n, device=args.device, seed=0,
+            sim={"solver": solver, "capture": capture, "cpu_threads": threads},
+            randomization=None if randomized == "off" else load_preset(randomized).get("env", {})["randomization"]))
+            for solver, capture, threads, n, randomized in sweeps]
         print(f"device: {args.device} ({device_name(resolve_device(args.device))})")
         print(f"task: {args.task}, preset: {args.preset}; env-steps/s (one env-step = one robot advanced one env "
               "step)")
-        print(f"{'solver':<13} {'capture':>7} {'shards':>6} {'num_envs':>9} {'physics alone':>15} {'full step':>15} "
-              f"{'full/physics':>13}")
-        for cfg in configs:
+        print(f"{'solver':<13} {'capture':>7} {'shards':>6} {'num_envs':>9} {'randomization':>13} "
+              f"{'physics alone':>15} "
+              f"{'full step':>15} {'full/physics':>13}")
+        for randomized, cfg in configs:
             physics = physics_rate(args.task, cfg, args.seconds)
             full, shards = full_step_rate(args.task, cfg, args.seconds)
-            print(f"{cfg.sim.solver:<13} {cfg.sim.capture:>7} {shards:>6} {cfg.num_envs:>9} "
+            print(f"{cfg.sim.solver:<13} {cfg.sim.capture:>7} {shards:>6} {cfg.num_envs:>9} {randomized:>13} "
                   f"{physics:>15,.0f} {full:>15,.0f} {full / physics:>12.1%}", flush=True)
     return 0
 

@@ -1,0 +1,390 @@
+"""Domain randomization (machinery): each env's physical parameters, drawn on the device with the env's own RNG,
+written into the Newton model's per-world fields, and the solver told (``notify_model_changed``).
+
+Per joint role (the task's 'cart', 'pole', ...): the mass of the body the role's joint moves (its inertia scaled
+with it), that body's centre of mass along the line from the joint to it, the joint's viscous damping and its
+Coulomb friction; per env: the actuator scale, gravity's magnitude and the action delay. Masses, centres of mass,
+damping and gravity are Newton model fields that both solvers read per world (Featherstone re-derives its spatial
+inertias in kernels, MuJoCo-Warp recomputes its derived constants); friction, actuator scale and delay act in the
+env's own kernels (Featherstone models no joint friction). Everything here runs in kernels, so it sits inside the
+captured env step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import newton
+import numpy as np
+import torch
+import warp as wp
+
+from .config import ConfigError, RandomizationConfig
+from .scene import Scene
+
+FRICTION_VELOCITY = wp.constant(0.01)
+"""Joint friction is -friction * tanh(velocity / this) (m/s or rad/s): Coulomb friction, smoothed so that it holds
+still a joint at rest without chattering at the physics step."""
+
+
+@dataclass(frozen=True)
+class RoleBody:
+    """What a role's joint moves, from env 0 of a scene: body and DOF indices inside one env, and the body's authored
+    (nominal) mass (kg), inertia about its centre of mass (kg m^2, body frame), centre of mass (m, body frame), the
+    unit vector from the joint to it (zero where they coincide) and the joint's axis in the body frame."""
+
+    body: int
+    dof: int
+    mass: float
+    inertia: np.ndarray
+    com: np.ndarray
+    com_direction: np.ndarray
+    com_distance: float
+    axis: np.ndarray
+    damping: float
+
+
+def role_bodies(scene: Scene) -> list[RoleBody]:
+    """The nominal body of each joint role of ``scene`` (env 0)."""
+    m = scene.model
+    child, x_c, axis = m.joint_child.numpy(), m.joint_X_c.numpy(), m.joint_axis.numpy()
+    mass, inertia, com = m.body_mass.numpy(), m.body_inertia.numpy(), m.body_com.numpy()
+    damping = m.joint_damping.numpy()
+    out = []
+    for joint, dof in zip(scene.role_joints, scene.role_dofs, strict=True):
+        body = int(child[joint])
+        anchor, rotation = x_c[joint][:3], wp.quat(*x_c[joint][3:])
+        lever = com[body] - anchor
+        distance = float(np.linalg.norm(lever))
+        distance = distance if distance > 1e-9 else 0.0
+        out.append(RoleBody(
+            body=body, dof=dof, mass=float(mass[body]), inertia=inertia[body].astype(np.float64), com=com[body],
+            com_direction=lever / distance if distance else np.zeros(3), com_distance=distance,
+            axis=np.array(wp.quat_rotate(rotation, wp.vec3(*axis[dof]))), damping=float(damping[dof])))
+    return out
+
+
+@wp.struct
+class Ranges:
+    """The config's ranges as the draw kernel takes them: per role (R, 2) low/high and (R,) on flags, per env (2,)."""
+
+    mass_scale: wp.array2d(dtype=float)
+    mass_on: wp.array(dtype=wp.int32)
+    com_offset: wp.array2d(dtype=float)
+    com_on: wp.array(dtype=wp.int32)
+    damping: wp.array2d(dtype=float)
+    damping_on: wp.array(dtype=wp.int32)
+    friction: wp.array2d(dtype=float)
+    friction_on: wp.array(dtype=wp.int32)
+    actuator_scale: wp.vec2
+    actuator_on: int
+    gravity: wp.vec2
+    gravity_on: int
+    max_delay: int
+
+
+@wp.func
+def pick(on: int, u: float, low: float, high: float, keep: float):
+    """``low + u (high - low)`` where ``on``, else ``keep``."""
+    value = keep
+    if on != 0:
+        value = low + u * (high - low)
+    return value
+
+
+@wp.struct
+class Layout:
+    """Where each role's values go in one env's block of the model, and the stage's (nominal) values."""
+
+    bodies_per_env: int
+    dofs_per_env: int
+    body: wp.array(dtype=wp.int32)
+    dof: wp.array(dtype=wp.int32)
+    mass: wp.array(dtype=float)
+    inertia: wp.array(dtype=wp.mat33)
+    com: wp.array(dtype=wp.vec3)
+    com_direction: wp.array(dtype=wp.vec3)
+    com_distance: wp.array(dtype=float)
+    damping: wp.array(dtype=float)
+    gravity_direction: wp.vec3
+    gravity: float
+
+
+@wp.struct
+class EnvPhysics:
+    """Per-env parameters (SI) of a shard's envs: (n, roles) and (n,) arrays."""
+
+    mass: wp.array2d(dtype=float)
+    com: wp.array2d(dtype=float)
+    damping: wp.array2d(dtype=float)
+    friction: wp.array2d(dtype=float)
+    actuator_scale: wp.array(dtype=float)
+    gravity: wp.array(dtype=float)
+    delay: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class ModelFields:
+    """The Newton model arrays of a shard that hold its envs' parameters."""
+
+    body_mass: wp.array(dtype=float)
+    body_inv_mass: wp.array(dtype=float)
+    body_inertia: wp.array(dtype=wp.mat33)
+    body_inv_inertia: wp.array(dtype=wp.mat33)
+    body_com: wp.array(dtype=wp.vec3)
+    joint_damping: wp.array(dtype=float)
+    gravity: wp.array(dtype=wp.vec3)
+
+
+@wp.func
+def write_env(env: int, layout: Layout, physics: EnvPhysics, model: ModelFields):
+    """Env ``env``'s (shard-local) parameters into its world's model fields, inverses included; the inertia about
+    the centre of mass scales with the mass."""
+    for r in range(physics.mass.shape[1]):
+        b = env * layout.bodies_per_env + layout.body[r]
+        m = physics.mass[env, r]
+        inertia = layout.inertia[r] * (m / layout.mass[r])
+        model.body_mass[b] = m
+        model.body_inv_mass[b] = 1.0 / m
+        model.body_inertia[b] = inertia
+        model.body_inv_inertia[b] = wp.inverse(inertia)
+        model.body_com[b] = layout.com[r] + layout.com_direction[r] * (physics.com[env, r] - layout.com_distance[r])
+        model.joint_damping[env * layout.dofs_per_env + layout.dof[r]] = physics.damping[env, r]
+    model.gravity[env] = layout.gravity_direction * physics.gravity[env]
+
+
+@wp.kernel(enable_backward=False)
+def draw_physics(everywhere: int, ended: wp.array(dtype=wp.int32), ranges: Ranges, layout: Layout,
+                 rng_state: wp.array(dtype=wp.uint32), physics: EnvPhysics, model: ModelFields):
+    """New physics for every env (``everywhere``) or where ``ended`` (an end reason) is set, written into the model.
+    Every parameter takes its draw from the RNG, randomized or not, so a parameter's value for a seed does not depend
+    on which others are randomized."""
+    env = wp.tid()
+    if everywhere == 0 and ended[env] == 0:
+        return
+    s = rng_state[env]
+    for r in range(physics.mass.shape[1]):
+        u = wp.randf(s)
+        physics.mass[env, r] = layout.mass[r] * pick(ranges.mass_on[r], u, ranges.mass_scale[r, 0],
+                                                     ranges.mass_scale[r, 1], 1.0)
+        u = wp.randf(s)
+        physics.com[env, r] = layout.com_distance[r] + pick(ranges.com_on[r], u, ranges.com_offset[r, 0],
+                                                            ranges.com_offset[r, 1], 0.0)
+        u = wp.randf(s)
+        physics.damping[env, r] = pick(ranges.damping_on[r], u, ranges.damping[r, 0], ranges.damping[r, 1],
+                                       layout.damping[r])
+        u = wp.randf(s)
+        physics.friction[env, r] = pick(ranges.friction_on[r], u, ranges.friction[r, 0], ranges.friction[r, 1], 0.0)
+    u = wp.randf(s)
+    physics.actuator_scale[env] = pick(ranges.actuator_on, u, ranges.actuator_scale[0], ranges.actuator_scale[1],
+                                       1.0)
+    u = wp.randf(s)
+    physics.gravity[env] = pick(ranges.gravity_on, u, ranges.gravity[0], ranges.gravity[1], layout.gravity)
+    physics.delay[env] = wp.randi(s, 0, ranges.max_delay + 1)
+    rng_state[env] = s
+    write_env(env, layout, physics, model)
+
+
+@wp.kernel(enable_backward=False)
+def write_model(layout: Layout, physics: EnvPhysics, model: ModelFields):
+    """Every env's parameters into the model."""
+    write_env(wp.tid(), layout, physics, model)
+
+
+class Physics:
+    """The per-env physical parameters of a batched env (SI units, persistent (N, roles) and (N,) arrays), their
+    draws and their way into each shard's model and solver."""
+
+    ALL_FLAGS = (newton.ModelFlags.BODY_INERTIAL_PROPERTIES | newton.ModelFlags.JOINT_DOF_FORCE_PROPERTIES
+                 | newton.ModelFlags.MODEL_PROPERTIES)
+    """Every model field ``write`` sets."""
+
+    def __init__(self, cfg: RandomizationConfig, roles: tuple[str, ...], kinds: list[newton.JointType],
+                 scene: Scene, num_envs: int, device: str):
+        self.cfg, self.roles, self.kinds, self.device = cfg, roles, kinds, device
+        self.bodies = role_bodies(scene)
+        for role, body in zip(roles, self.bodies, strict=True):
+            if role in cfg.com_offset_m:
+                low = cfg.com_offset_m[role][0]
+                if body.com_distance == 0.0:
+                    raise ConfigError(f"randomization.com_offset_m.{role}: the {role} body's centre of mass lies on "
+                                      "its joint, so there is no line to move it along")
+                if body.com_distance + low < 0.0:
+                    raise ConfigError(f"randomization.com_offset_m.{role}: low {low:g} would move the centre of mass "
+                                      f"past the joint (it sits {body.com_distance:g} m from it)")
+        gravity = scene.model.gravity.numpy()[0].astype(np.float64)
+        self.gravity_m_s2 = float(np.linalg.norm(gravity))
+        self.gravity_direction = wp.vec3(*(gravity / self.gravity_m_s2)) if self.gravity_m_s2 else wp.vec3(0.0)
+        n, r = num_envs, len(roles)
+
+        def per_role(values) -> wp.array:
+            return wp.array(np.tile(np.asarray(values, dtype=np.float32), (n, 1)), dtype=float, device=device)
+
+        self.mass = per_role([b.mass for b in self.bodies])
+        self.com = per_role([b.com_distance for b in self.bodies])
+        self.damping = per_role([b.damping for b in self.bodies])
+        self.friction = per_role(np.zeros(r))
+        self.actuator_scale = wp.full(n, 1.0, dtype=float, device=device)
+        self.gravity = wp.full(n, self.gravity_m_s2, dtype=float, device=device)
+        self.delay = wp.zeros(n, dtype=wp.int32, device=device)
+        layout = Layout()
+        layout.bodies_per_env, layout.dofs_per_env = scene.bodies_per_env, scene.dofs_per_env
+        layout.body = wp.array([b.body for b in self.bodies], dtype=wp.int32, device=device)
+        layout.dof = wp.array([b.dof for b in self.bodies], dtype=wp.int32, device=device)
+        layout.mass = wp.array([b.mass for b in self.bodies], dtype=float, device=device)
+        layout.inertia = wp.array([b.inertia for b in self.bodies], dtype=wp.mat33, device=device)
+        layout.com = wp.array([b.com for b in self.bodies], dtype=wp.vec3, device=device)
+        layout.com_direction = wp.array([b.com_direction for b in self.bodies], dtype=wp.vec3, device=device)
+        layout.com_distance = wp.array([b.com_distance for b in self.bodies], dtype=float, device=device)
+        layout.damping = wp.array([b.damping for b in self.bodies], dtype=float, device=device)
+        layout.gravity_direction, layout.gravity = self.gravity_direction, self.gravity_m_s2
+        self._layout = layout
+        self._ranges = self._make_ranges()
+        flags = 0
+        if cfg.mass_scale or cfg.com_offset_m:
+            flags |= newton.ModelFlags.BODY_INERTIAL_PROPERTIES
+        if cfg.joint_damping:
+            flags |= newton.ModelFlags.JOINT_DOF_FORCE_PROPERTIES
+        if cfg.gravity_m_s2 is not None:
+            flags |= newton.ModelFlags.MODEL_PROPERTIES
+        self.model_flags = flags
+        """What a draw changes in the model (and the solver is told of); 0 when only the env's own forces change."""
+
+    def _make_ranges(self) -> Ranges:
+        cfg, dev = self.cfg, self.device
+
+        def per_role(table: dict) -> tuple[wp.array, wp.array]:
+            bounds = [table.get(role, (0.0, 0.0)) for role in self.roles]
+            return (wp.array(np.array(bounds, dtype=np.float32).reshape(-1, 2), dtype=float, device=dev),
+                    wp.array([int(role in table) for role in self.roles], dtype=wp.int32, device=dev))
+
+        ranges = Ranges()
+        ranges.mass_scale, ranges.mass_on = per_role(cfg.mass_scale)
+        ranges.com_offset, ranges.com_on = per_role(cfg.com_offset_m)
+        ranges.damping, ranges.damping_on = per_role(cfg.joint_damping)
+        ranges.friction, ranges.friction_on = per_role(cfg.joint_friction)
+        ranges.actuator_scale = wp.vec2(*(cfg.actuator_scale or (1.0, 1.0)))
+        ranges.actuator_on = int(cfg.actuator_scale is not None)
+        ranges.gravity = wp.vec2(*(cfg.gravity_m_s2 or (0.0, 0.0)))
+        ranges.gravity_on = int(cfg.gravity_m_s2 is not None)
+        ranges.max_delay = cfg.action_delay_steps
+        return ranges
+
+    @property
+    def drawn(self) -> bool:
+        """Whether anything but observation noise is drawn."""
+        return self.cfg.on and self.cfg != RandomizationConfig(at=self.cfg.at, obs_noise_std=self.cfg.obs_noise_std)
+
+    @property
+    def has_friction(self) -> bool:
+        return bool(self.cfg.joint_friction)
+
+    def _shard_structs(self, shard) -> tuple[EnvPhysics, ModelFields]:
+        rows, m = shard.rows, shard.scene.model
+        physics = EnvPhysics()
+        physics.mass, physics.com, physics.damping = rows(self.mass), rows(self.com), rows(self.damping)
+        physics.friction, physics.actuator_scale = rows(self.friction), rows(self.actuator_scale)
+        physics.gravity, physics.delay = rows(self.gravity), rows(self.delay)
+        model = ModelFields()
+        model.body_mass, model.body_inv_mass, model.body_com = m.body_mass, m.body_inv_mass, m.body_com
+        model.body_inertia, model.body_inv_inertia = m.body_inertia, m.body_inv_inertia
+        model.joint_damping, model.gravity = m.joint_damping, m.gravity
+        return physics, model
+
+    def draw(self, shard, rng_state: wp.array, ended: wp.array | None):
+        """New parameters for the shard's envs where ``ended`` (end reasons) is set, or for all of them (None),
+        written into the shard's model; its solver told."""
+        physics, model = self._shard_structs(shard)
+        wp.launch(draw_physics, dim=shard.num_envs,
+                  inputs=[int(ended is None), shard.rows(ended if ended is not None else self.delay), self._ranges,
+                          self._layout],
+                  outputs=[shard.rows(rng_state), physics, model], device=self.device)
+        self._notify(shard, self.model_flags)
+
+    def write(self, shard):
+        """Every parameter of the shard's envs into its model; its solver told."""
+        physics, model = self._shard_structs(shard)
+        wp.launch(write_model, dim=shard.num_envs, inputs=[self._layout, physics], outputs=[model],
+                  device=self.device)
+        self._notify(shard, self.ALL_FLAGS)
+
+    @staticmethod
+    def _notify(shard, flags: int):
+        if flags:
+            shard.scene.solver.notify_model_changed(flags)
+
+    def values(self) -> dict[str, torch.Tensor]:
+        """Each env's parameters in SI units, (N,) tensors named by what they are."""
+        return self._named(wp.to_torch(self.mass), wp.to_torch(self.com), wp.to_torch(self.damping),
+                           wp.to_torch(self.friction), wp.to_torch(self.actuator_scale), wp.to_torch(self.gravity),
+                           wp.to_torch(self.delay))
+
+    def stage_values(self) -> dict[str, torch.Tensor]:
+        """The stage's parameters (what ``values`` gives without randomization), as (1,) tensors."""
+        def row(values):
+            return torch.tensor([values], dtype=torch.float32)
+
+        return self._named(row([b.mass for b in self.bodies]), row([b.com_distance for b in self.bodies]),
+                           row([b.damping for b in self.bodies]), torch.zeros(1, len(self.roles)), torch.ones(1),
+                           torch.tensor([self.gravity_m_s2], dtype=torch.float32), torch.zeros(1, dtype=torch.int32))
+
+    def _named(self, mass, com, damping, friction, actuator_scale, gravity, delay) -> dict[str, torch.Tensor]:
+        out = {}
+        for r, (role, kind, body) in enumerate(zip(self.roles, self.kinds, self.bodies, strict=True)):
+            slider = kind == newton.JointType.PRISMATIC
+            out[f"{role}_mass_kg"] = mass[:, r].clone()
+            out[f"{role}_com_m"] = com[:, r].clone()
+            axis_inertia = float(body.axis @ body.inertia @ body.axis)
+            out[f"{role}_inertia_kg_m2"] = mass[:, r] * (axis_inertia / body.mass)
+            out[f"{role}_damping_" + ("n_s_m" if slider else "n_m_s_rad")] = damping[:, r].clone()
+            out[f"{role}_friction_" + ("n" if slider else "n_m")] = friction[:, r].clone()
+        out["actuator_scale"] = actuator_scale.clone()
+        out["gravity_m_s2"] = gravity.clone()
+        out["action_delay_steps"] = delay.clone()
+        return out
+
+    def settable(self) -> list[str]:
+        """The names ``set`` takes: those of ``values`` except the derived inertias."""
+        return [name for name in self.values() if not name.endswith("_inertia_kg_m2")]
+
+    def set(self, values: dict[str, torch.Tensor]):
+        """Copy (N,) tensors in SI units into the named parameters (ValueError for an unknown name or a value out of
+        range); the caller writes them into the model."""
+        names = self.settable()
+        targets = {}
+        mass, com = wp.to_torch(self.mass), wp.to_torch(self.com)
+        damping, friction = wp.to_torch(self.damping), wp.to_torch(self.friction)
+        for r, role in enumerate(self.roles):
+            targets[f"{role}_mass_kg"] = (mass[:, r], 0.0)
+            targets[f"{role}_com_m"] = (com[:, r], 0.0)
+            for name in names:
+                if name.startswith(f"{role}_damping_"):
+                    targets[name] = (damping[:, r], 0.0)
+                if name.startswith(f"{role}_friction_"):
+                    targets[name] = (friction[:, r], 0.0)
+        targets["actuator_scale"] = (wp.to_torch(self.actuator_scale), 0.0)
+        targets["gravity_m_s2"] = (wp.to_torch(self.gravity), 0.0)
+        targets["action_delay_steps"] = (wp.to_torch(self.delay), 0)
+        for name, value in values.items():
+            if name not in targets:
+                raise ValueError(f"unknown physical parameter {name!r}; settable: {', '.join(names)}")
+            target, low = targets[name]
+            if not torch.isfinite(value.to(torch.float64)).all() or (value < low).any():
+                raise ValueError(f"{name}: every value must be finite and >= {low}")
+            if name.endswith("_mass_kg") and (value <= 0).any():
+                raise ValueError(f"{name}: every mass must be > 0")
+            if name == "action_delay_steps" and (value > self.cfg.action_delay_steps).any():
+                raise ValueError(f"action_delay_steps: at most randomization.action_delay_steps="
+                                 f"{self.cfg.action_delay_steps} (the action history the env keeps)")
+            target.copy_(value)
+
+
+@wp.kernel(enable_backward=False)
+def add_friction(dofs_per_env: int, role_dof: wp.array(dtype=wp.int32), actuator_f: wp.array2d(dtype=float),
+                 friction: wp.array2d(dtype=float), joint_qd: wp.array(dtype=float), joint_f: wp.array(dtype=float)):
+    """joint_f = the actuator's force - friction * tanh(velocity / FRICTION_VELOCITY), per role (before each physics
+    step)."""
+    env = wp.tid()
+    for r in range(friction.shape[1]):
+        dof = env * dofs_per_env + role_dof[r]
+        joint_f[dof] = actuator_f[env, r] - friction[env, r] * wp.tanh(joint_qd[dof] / FRICTION_VELOCITY)
