@@ -6,6 +6,7 @@
     python play.py --agent zero --headless       # no checkpoint needed (also: random)
     python play.py --headless --eval             # success rate over a grid of pole mass x actuator strength
     python play.py                               # Newton's interactive viewer (needs a display and the viz extra)
+    python play.py --viewer viser                # in a browser: http://127.0.0.1:8080 (needs the viser extra)
 
 The task and its env are rebuilt from the run's saved config.yaml (flags override it); the policy acts
 deterministically (the Gaussian's mean). Also installed as ``python -m cartpole_warp.play``.
@@ -32,6 +33,7 @@ from .scene import StageError
 DEFAULT_PLAY_ENVS = 256
 NO_LIMIT_STEPS = 1000
 Agent = Literal["trained", "zero", "random"]
+Viewer = Literal["window", "viser", "none"]
 
 
 @dataclass
@@ -54,7 +56,17 @@ class PlayArgs(Generic[TaskT]):
     """Preset of the env for --agent zero|random, or for a checkpoint outside a run folder."""
     headless: bool = False
     """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda
-    and result.json."""
+    and result.json (the same as --viewer none)."""
+    viewer: Viewer = "window"
+    """window: Newton's OpenGL viewer (a display and the viz extra); viser: a web page served by this process (the
+    viser extra); none: --headless."""
+    host: str = "127.0.0.1"
+    """--viewer viser: the address the page is served on; 0.0.0.0 serves it to every network this machine is on, where
+    anyone who reaches the port can watch and pause the run."""
+    port: int = 8080
+    """--viewer viser: the page's port."""
+    viewer_envs: int = 16
+    """--viewer viser: how many envs the page shows, in a grid."""
     export: bool = False
     """Write <run>/exported/policy.onnx and policy.pt."""
     steps: int | None = None
@@ -119,6 +131,9 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     require(args.video_length is None or args.video_length >= 1,
             f"--video-length must be >= 1, got {args.video_length}")
     cfg.env = args.env
+    if args.viewer == "none":
+        args.headless = True
+    require(args.viewer_envs >= 1, f"--viewer-envs must be >= 1, got {args.viewer_envs}")
     if args.eval:
         require(args.headless, "--eval runs headless: add --headless")
         require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
@@ -149,7 +164,11 @@ def play(argv: list[str]) -> int:
     """play.py's work; ViewerUnavailable when the viewer is asked for and cannot open."""
     with clean_errors(ConfigError, RunError, StageError):
         args, cfg, checkpoint = resolve(argv)
-        if not args.headless:
+        if not args.headless and args.viewer == "viser":
+            from .viz.web import check_viser
+
+            check_viser()
+        elif not args.headless:
             from .viz.viewer import check_viewer
 
             check_viewer()
@@ -178,6 +197,13 @@ def play(argv: list[str]) -> int:
             print(f"policy: {args.agent}")
         if args.eval:
             return evaluate_robustness(args, cfg, env, policy, checkpoint)
+        if not args.headless and args.viewer == "viser":
+            from .viz.web import view_in_browser
+
+            steps = view_in_browser(env, policy, args.host, args.port, args.viewer_envs, max_steps=args.steps,
+                                    on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True))
+            print(f"viewer closed after {steps} env steps")
+            return 0
         if not args.headless:
             from .viz.viewer import view_interactively
 

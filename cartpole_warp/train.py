@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Generic
+from typing import Annotated, Generic, Literal
 
 import tyro
 
@@ -41,6 +41,15 @@ class TrainArgs(Generic[TaskT]):
     run under --log-dir. The run's config.yaml is the starting point; flags still override it."""
     checkpoint: Path | None = None
     """Continue from this checkpoint file, in its run folder (implies --resume)."""
+    viewer: Literal["none", "viser"] = "none"
+    """viser: watch the training envs in a browser (the viser extra), drawn between iterations at most 1/20 of the
+    time (nothing is imported or drawn without it)."""
+    host: str = "127.0.0.1"
+    """--viewer viser: the address the page is served on (0.0.0.0: every network this machine is on)."""
+    port: int = 8080
+    """--viewer viser: the page's port."""
+    viewer_envs: int = 16
+    """--viewer viser: how many envs the page shows."""
 
 
 def task_list() -> str:
@@ -50,6 +59,12 @@ def task_list() -> str:
 
 def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
     """(config, run folder, checkpoint to resume from or None) from the command line."""
+    cfg, run_dir, checkpoint, _ = resolve_args(argv)
+    return cfg, run_dir, checkpoint
+
+
+def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, TrainArgs]:
+    """``resolve``, and the parsed arguments."""
     argv = with_default_value(argv, "--resume", "latest")
     first = peek(argv, task=None, config=None, resume=None, checkpoint=None, log_dir="logs",
                  **{"agent.experiment_name": None})
@@ -77,15 +92,23 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
     cls = TrainArgs[type(base.env.task)]
     args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}")
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
+    require(args.viewer_envs >= 1, f"--viewer-envs must be >= 1, got {args.viewer_envs}")
     cfg = checked(args.cfg).validate()
-    return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint
+    return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint, args
 
 
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, RunError, StageError):
         ranks = Ranks.from_environment()
-        cfg, run_dir, checkpoint = resolve(sys.argv[1:] if argv is None else argv)
+        cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
+        if args.viewer == "viser":
+            from .viz.web import ViewerUnavailable, check_viser
+
+            try:
+                check_viser()
+            except ViewerUnavailable as err:
+                raise ConfigError(str(err)) from None
         import torch
 
         from .rl.training import Training
@@ -94,12 +117,21 @@ def main(argv: list[str] | None = None) -> int:
         say(f"run folder: {run_dir}" + (f" (resuming from {checkpoint.name})" if checkpoint else ""))
         where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
         say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)
+        training = None
         try:
             training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks)
             say(f"ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
                 f"{training.task.solved.describe(training.max_episode_length)}", flush=True)
+            if args.viewer == "viser" and ranks.writes:
+                from .viz.web import TrainingView
+
+                view = TrainingView(training.env.env, args.host, args.port, args.viewer_envs)
+                training.runner.on_iteration = view
+                say(f"watch it at {view.url}", flush=True)
             summary = training.run()
         finally:
+            if training is not None and training.runner.on_iteration is not None:
+                training.runner.on_iteration.close()
             if torch.distributed.is_initialized():
                 torch.distributed.destroy_process_group()
     if summary is None:

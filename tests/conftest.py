@@ -4,6 +4,7 @@ Tests run on the CPU; ``CARTPOLE_TEST_DEVICE=cuda:0 pytest`` runs the env tests 
 """
 
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -54,3 +55,15 @@ def random_actions():
         return ((torch.rand((steps, num_envs, 1), generator=gen) * 2 - 1) * scale).to(DEVICE)
 
     return actions
+
+
+def system_command(name: str, install: str) -> str:
+    """The path of system command ``name``; where it is missing, the test skips with the install line (fails where
+    ``CI`` is set: .ci/run installs it)."""
+    path = shutil.which(name)
+    if path is None:
+        message = f"needs {name}: {install}"
+        if os.environ.get("CI"):
+            pytest.fail(f"{message} (.ci/run installs it; CI is set)")
+        pytest.skip(message)
+    return path

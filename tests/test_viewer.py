@@ -1,16 +1,30 @@
 """play.py without --headless opens Newton's ViewerGL on a virtual display (Xvfb), runs and exits cleanly."""
 
-import shutil
 import subprocess
 import sys
 
+from conftest import system_command
+
 
 def test_play_opens_newtons_viewer_under_xvfb(repo, tmp_path):
-    xvfb_run = shutil.which("xvfb-run")
-    assert xvfb_run, "the viewer test needs Xvfb: apt-get install -y xvfb (.ci/run installs it)"
+    xvfb_run = system_command("xvfb-run", "apt-get install -y xvfb")
     result = subprocess.run([xvfb_run, "-a", "-s", "-screen 0 1280x800x24", sys.executable, str(repo / "play.py"),
                              "--agent", "zero", "--num-envs", "4", "--steps", "90", "--log-dir", str(tmp_path)],
                             cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "viewer closed after 90 env steps" in result.stdout, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_browser_viewer_without_the_extra_says_how_to_install_it(repo, tmp_path):
+    """--viewer viser without viser installed (hidden here): one line naming the install command and a failing exit
+    code (play.py's viewer errors exit 1, train.py's configuration errors 2)."""
+    for script, code, args in (("play", 1, ["--agent", "zero", "--viewer", "viser"]),
+                               ("train", 2, ["--num-envs", "64", "--viewer", "viser", "--log-dir", str(tmp_path)])):
+        program = (f"import sys; sys.modules['viser'] = None; from cartpole_warp.{script} import main; "
+                   f"sys.exit(main({args!r}))")
+        result = subprocess.run([sys.executable, "-c", program], cwd=tmp_path, capture_output=True, text=True,
+                                timeout=300)
+        assert result.returncode == code, result.stdout + result.stderr
+        assert "pip install 'cartpole_warp[viser]'" in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr

@@ -19,6 +19,7 @@ import os
 import tempfile
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import onnx
@@ -71,6 +72,9 @@ class CartpoleRunner(OnPolicyRunner):
         self._rollout_input: TensorDict | None = None
         self._clock = PhaseClock(self.device, phases=2)
         """Collection and learning time of each iteration, on the device."""
+        self.on_iteration: Callable[[int, EpisodeSummary], None] | None = None
+        """Called after each iteration's console line (rank 0) with the iteration and its episodes' summary (the
+        browser viewer's hook)."""
         self.add_git_repo_to_log(__file__)
 
     @property
@@ -169,6 +173,8 @@ class CartpoleRunner(OnPolicyRunner):
         elif self.gpu_global_rank == 0:
             self._write_metrics(it, stats, loss_dict, steps / iteration_time, collect_time, learn_time)
             print(self._progress_line(it, stats, steps / iteration_time, solved, now), flush=True)
+        if self.on_iteration is not None and self.gpu_global_rank == 0:
+            self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
         self.stop_reason = joint_stop(wanted, self.device, self.is_distributed)
 

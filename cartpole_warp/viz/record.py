@@ -1,5 +1,5 @@
-"""Recording env 0 of a rollout: a GIF side view, an MP4 of the same pictures, and a time-sampled USD stage (Newton's
-``ViewerUSD``).
+"""Recording env 0 of a rollout: a GIF side view, an MP4 of the same pictures, a time-sampled USD stage (Newton's
+``ViewerUSD``) and, with the viser extra, a ``.viser`` recording for the browser.
 
     recorder = Recorder(env.scene, env.env_dt, out_dir)
     rollout(env, policy, steps, on_step=recorder)
@@ -56,6 +56,11 @@ class Recorder:
         self.usd = ViewerUSD(str(self._usd_tmp), fps=self.fps, num_frames=None)
         self.usd.set_model(scene.model)
         self.usd.set_visible_worlds([0])
+        self.viser = None
+        if importlib.util.find_spec("viser") is not None:
+            from .web import Recording
+
+            self.viser = Recording(scene, self.out_dir / "cartpole.viser", env_dt)
 
     def __call__(self, step: int):
         state = self.scene.state_0
@@ -63,16 +68,23 @@ class Recorder:
         self.usd.begin_frame(step / self.fps)
         self.usd.log_state(state)
         self.usd.end_frame()
+        if self.viser is not None:
+            self.viser(step)
 
     def close(self) -> list[Path]:
-        """Write the GIF, the MP4 (when the video extra is installed) and the USD stage; return their paths."""
+        """Write the GIF, the MP4 (when the video extra is installed), the USD stage and the viser recording (when
+        the viser extra is); return their paths."""
         self.usd.close()
         usd = self.out_dir / "cartpole.usda"
         os.replace(self._usd_tmp, usd)
+        recordings = [usd]
+        if self.viser is not None:
+            self.viser.close()
+            recordings.append(self.out_dir / "cartpole.viser")
         view = SideView.around(self.geometry, self.frames, width_px=800)
         written = [write_gif(self.out_dir / "cartpole.gif", view, np.stack(self.frames), self.env_dt)]
         if video_available():
             shown = self.frames[:self.video_length] if self.video_length else self.frames
             images = [np.asarray(view.image(t, f"t = {i * self.env_dt:5.2f} s")) for i, t in enumerate(shown)]
             written.append(write_mp4(self.out_dir / "cartpole.mp4", images, 1.0 / self.env_dt))
-        return [*written, usd]
+        return [*written, *recordings]

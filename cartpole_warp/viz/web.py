@@ -1,0 +1,226 @@
+"""Newton's ``ViewerViser`` on the batched env: a web page served by this process, the first envs in a grid, live
+plots of the reward per step and the episode length, pause and single-step from the page.
+
+Needs the viser extra: ``pip install 'cartpole_warp[viser]'``. Binds to 127.0.0.1 unless told another host: anyone who
+can reach the host and port sees the page and can pause the run. ``Recording`` writes a ``.viser`` file, and
+``python -m cartpole_warp.viz.web FILE.viser`` plays one in viser's static player.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import http.server
+import math
+import socket
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import newton
+import numpy as np
+import torch
+import warp as wp
+
+from ..env import BatchedEnv
+from .viewer import ViewerUnavailable
+
+VISER_EXTRA = "pip install 'cartpole_warp[viser]'"
+GRID_SPACING_M = (0.0, 9.0, 1.6)
+"""Offsets between the shown envs: 9 m along the rail (Y), 1.6 m up (Z)."""
+CAMERA_FOV_DEG = 50.0
+"""Vertical field of view assumed when framing the grid (viser's default is near it)."""
+
+
+def check_viser():
+    """ViewerUnavailable naming the install command unless viser is installed."""
+    try:
+        import viser  # noqa: F401
+    except ImportError:
+        raise ViewerUnavailable(f"the browser viewer needs the viser extra: {VISER_EXTRA}") from None
+
+
+class WebViewer:
+    """The first ``num_shown`` envs of ``env`` in Newton's viser viewer at ``http://host:port``."""
+
+    def __init__(self, env: BatchedEnv, host: str = "127.0.0.1", port: int = 8080, num_shown: int = 16,
+                 title: str = "cartpole_warp"):
+        check_viser()
+        from newton.viewer import ViewerViser
+
+        self.env = env
+        self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False)
+        self.url = self.viewer.url
+        model = env.scene.model
+        self.num_shown = min(num_shown, env.scene.num_envs)
+        self.viewer.set_model(model)
+        self.viewer.set_visible_worlds(range(self.num_shown))
+        self.viewer.set_world_offsets(GRID_SPACING_M)
+        self._frame_grid(model.up_axis)
+        self._shown = wp.array(model.articulation_world.numpy() < self.num_shown, dtype=wp.bool, device=model.device)
+
+    def _frame_grid(self, up_axis):
+        """Camera side-on (looking along -X), far enough to see every shown env's rail."""
+        offsets = newton.utils.compute_world_offsets(self.num_shown, GRID_SPACING_M, up_axis)
+        width_m = np.ptp(offsets[:, 1]) + GRID_SPACING_M[1]
+        height_m = np.ptp(offsets[:, 2]) + 2 * GRID_SPACING_M[2]
+        distance_m = max(height_m, width_m / 1.2) / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
+        centre = offsets.mean(axis=0)
+        self.viewer.set_camera(wp.vec3(distance_m, float(centre[1]), float(centre[2]) + 0.5), pitch=0.0, yaw=180.0)
+
+    def is_running(self) -> bool:
+        return self.viewer.is_running()
+
+    def wants_step(self) -> bool:
+        """Whether the env should step now: not paused, or the page asked for one step."""
+        return not self.viewer.is_paused() or self.viewer.should_step()
+
+    def draw(self, time_s: float, scalars: dict[str, float] | None = None):
+        """The shown envs' current poses (resets included) and the named scalars' next points."""
+        state = self.env.scene.state_0
+        newton.eval_fk(self.env.scene.model, state.joint_q, state.joint_qd, state, mask=self._shown)
+        self.viewer.begin_frame(time_s)
+        self.viewer.log_state(state)
+        for name, value in (scalars or {}).items():
+            self.viewer.log_scalar(name, value)
+        self.viewer.end_frame()
+
+    def close(self):
+        """Stop the server (its port is free afterwards)."""
+        self.viewer.close()
+
+
+def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tensor], host: str, port: int,
+                    num_shown: int, max_steps: int | None = None, on_ready: Callable[[str], None] = print) -> int:
+    """Run ``policy`` in the browser viewer at real time until Ctrl-C (or ``max_steps`` env steps); return the steps
+    run. ``on_ready(url)`` is called once the page is served."""
+    viewer = WebViewer(env, host, port, num_shown)
+    on_ready(viewer.url)
+    obs, _ = env.reset()
+    steps = 0
+    scalars: dict[str, float] = {}
+    try:
+        with torch.inference_mode():
+            while viewer.is_running() and (max_steps is None or steps < max_steps):
+                started = time.perf_counter()
+                if viewer.wants_step():
+                    obs, reward, terminated, truncated, info = env.step(policy(obs).to(torch.float32))
+                    steps += 1
+                    ended = terminated | truncated
+                    scalars["reward per step"] = reward.mean().item()
+                    if ended.any():
+                        scalars["episode length (s)"] = info["episode_length"][ended].float().mean().item() * env.env_dt
+                viewer.draw(steps * env.env_dt, scalars)
+                time.sleep(max(0.0, env.env_dt - (time.perf_counter() - started)))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+    return steps
+
+
+class TrainingView:
+    """``runner.on_iteration``: the training envs in the browser viewer, drawn between iterations while drawing takes
+    at most ``1 / (1 + DRAW_RATIO)`` of the wall time (each draw waits ``DRAW_RATIO`` times the last draw's duration);
+    the plots show each drawn iteration's mean reward per step and episode length."""
+
+    DRAW_RATIO = 20
+
+    def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int):
+        self.viewer = WebViewer(env, host, port, num_shown)
+        self.url = self.viewer.url
+        self._next_draw = 0.0
+
+    def __call__(self, iteration: int, summary) -> None:
+        started = time.perf_counter()
+        if started < self._next_draw:
+            return
+        scalars = {}
+        if summary.mean_reward_per_step is not None:
+            scalars = {"reward per step": summary.mean_reward_per_step,
+                       "episode length (s)": summary.mean_length * self.viewer.env.env_dt}
+        self.viewer.draw(float(iteration), scalars)
+        took = time.perf_counter() - started
+        self._next_draw = started + took * (1 + self.DRAW_RATIO)
+
+    def close(self):
+        self.viewer.close()
+
+
+class Recording:
+    """A ``.viser`` recording of env 0's bodies (what the GIF shows), one frame per env step; ``close()`` writes it.
+    Newton's viser viewer records only while it serves, so it serves an unused local port meanwhile."""
+
+    def __init__(self, scene, path: Path, env_dt: float):
+        check_viser()
+        from newton.viewer import ViewerViser
+
+        self.scene, self.env_dt = scene, env_dt
+        self.viewer = ViewerViser(host="127.0.0.1", port=free_port(), verbose=False, record_to_viser=str(path))
+        self.viewer.set_model(scene.model)
+        self.viewer.set_visible_worlds([0])
+
+    def __call__(self, step: int):
+        self.viewer.begin_frame(step * self.env_dt)
+        self.viewer.log_state(self.scene.state_0)
+        self.viewer.end_frame()
+
+    def close(self):
+        self.viewer.save_recording()
+        self.viewer.close()
+
+
+def free_port() -> int:
+    """A TCP port nothing listens on now (127.0.0.1)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def serve_recording(path: Path, port: int) -> None:
+    """Serve viser's static player with the recording ``path`` on 127.0.0.1:``port`` until Ctrl-C."""
+    check_viser()
+    from newton.viewer import ViewerViser
+
+    data = Path(path).read_bytes()
+    client_dir = str(ViewerViser.get_viser_client_dir())
+
+    class Player(http.server.SimpleHTTPRequestHandler):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, directory=client_dir, **kwargs)
+
+        def do_GET(self):
+            if self.path.split("?")[0] != "/recording.viser":
+                return super().do_GET()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/octet-stream")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+        def log_message(self, *args):
+            pass
+
+    with http.server.ThreadingHTTPServer(("127.0.0.1", port), Player) as server:
+        print(f"watch it at http://127.0.0.1:{port}/?playbackPath=recording.viser (Ctrl-C ends)", flush=True)
+        with contextlib.suppress(KeyboardInterrupt):
+            server.serve_forever()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m cartpole_warp.viz.web RECORDING.viser [PORT]``: play a recording in the browser."""
+    args = sys.argv[1:] if argv is None else argv
+    if not args or not Path(args[0]).is_file():
+        print("usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]  (e.g. logs/.../play/cartpole.viser)",
+              file=sys.stderr)
+        return 2
+    try:
+        serve_recording(Path(args[0]), int(args[1]) if len(args) > 1 else 8081)
+    except ViewerUnavailable as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

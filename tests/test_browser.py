@@ -1,0 +1,177 @@
+"""The browser viewer (viser) in a real browser: headless Chromium driven by Selenium opens the page that
+``play.py --viewer viser`` and ``train.py --viewer viser`` serve."""
+
+import io
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import system_command
+from PIL import Image
+
+pytest.importorskip("viser", reason="needs the viser extra: pip install -e '.[viser]'")
+webdriver = pytest.importorskip("selenium.webdriver", reason="needs selenium: pip install -e '.[dev]'")
+
+INSTALL = "apt-get install -y chromium chromium-driver"
+SCREENSHOT = os.environ.get("CARTPOLE_VISER_SCREENSHOT")
+"""Where to keep the page's screenshot (the README's), if set."""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def port_is_free(port: int) -> bool:
+    """Whether a server can listen on ``port`` again (as servers do, with SO_REUSEADDR: the closed connections may
+    linger in TIME_WAIT)."""
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+            s.listen()
+        except OSError:
+            return False
+    return True
+
+
+def start(repo: Path, script: str, *args) -> tuple[subprocess.Popen, str]:
+    """Start ``script`` with ``args``; (the process, the URL it prints) once it serves its page."""
+    process = subprocess.Popen([sys.executable, str(repo / script), *map(str, args)], cwd=repo, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    lines = []
+    for line in process.stdout:
+        lines.append(line)
+        found = re.search(r"watch it at (http://\S+)", line)
+        if found:
+            return process, found.group(1)
+    process.wait(timeout=30)
+    pytest.fail(f"{script} served no page:\n{''.join(lines)}")
+
+
+def stop(process: subprocess.Popen) -> str:
+    """Ctrl-C the process; its remaining output (it must exit with 0)."""
+    process.send_signal(signal.SIGINT)
+    output = process.communicate(timeout=120)[0]
+    assert process.returncode == 0, output
+    return output
+
+
+@pytest.fixture
+def browser():
+    """Headless Chromium (Debian's, with its chromedriver) with WebGL in software and the console log kept."""
+    from selenium.webdriver.chrome.service import Service
+
+    chromium = system_command("chromium", INSTALL)
+    driver_path = system_command("chromedriver", INSTALL)
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--enable-unsafe-swiftshader",
+                     "--use-angle=swiftshader", "--window-size=1280,800"):
+        options.add_argument(argument)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(driver_path), options=options)
+    yield driver
+    driver.quit()
+
+
+def screenshot(driver) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(driver.get_screenshot_as_png())).convert("RGB")).astype(np.int16)
+
+
+def open_page(driver, url: str):
+    """Load ``url`` and wait for viser's 3-D canvas."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver.get(url)
+    WebDriverWait(driver, 60).until(lambda d: d.find_elements(By.TAG_NAME, "canvas"))
+
+
+def console_errors(driver) -> list[str]:
+    return [entry["message"] for entry in driver.get_log("browser") if entry["level"] == "SEVERE"]
+
+
+def test_play_serves_a_moving_scene_to_a_browser(repo, tmp_path, browser):
+    """play.py --viewer viser: the page loads without console errors, shows a 3-D canvas, a screenshot that is not
+    blank, and another a moment later that differs (the poles move); Ctrl-C frees the port."""
+    port = free_port()
+    process, url = start(repo, "play.py", "--agent", "zero", "--viewer", "viser", "--port", port, "--num-envs", 16,
+                         "--steps", 100_000, "--log-dir", tmp_path)
+    try:
+        assert url == f"http://127.0.0.1:{port}"
+        open_page(browser, url)
+        time.sleep(4)
+        first = screenshot(browser)
+        time.sleep(1.5)
+        second = screenshot(browser)
+        errors = console_errors(browser)
+    finally:
+        output = stop(process)
+    assert errors == []
+    assert first.std() > 5, "the page is blank"
+    assert np.abs(first - second).mean() > 0.01, "the scene does not move"
+    assert re.search(r"viewer closed after \d+ env steps", output), output
+    assert port_is_free(port)
+    if SCREENSHOT:
+        Image.fromarray(first.astype(np.uint8)).save(SCREENSHOT)
+
+
+def test_play_ends_after_its_steps(repo, tmp_path):
+    """--steps N ends the browser viewer by itself, with no browser connected."""
+    port = free_port()
+    result = subprocess.run([sys.executable, str(repo / "play.py"), "--agent", "zero", "--viewer", "viser", "--port",
+                             str(port), "--num-envs", "4", "--steps", "30", "--log-dir", str(tmp_path)], cwd=repo,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "viewer closed after 30 env steps" in result.stdout
+    assert port_is_free(port)
+
+
+def test_train_serves_its_envs_and_exits_cleanly(repo, tmp_path, browser):
+    """train.py --viewer viser: a short run serves the training envs' page (a 3-D canvas, no console errors), ends
+    by itself and frees the port."""
+    port = free_port()
+    process, url = start(repo, "train.py", "--num-envs", 64, "--max-iterations", 40, "--viewer", "viser", "--port",
+                         port, "--log-dir", tmp_path)
+    open_page(browser, url)
+    errors = console_errors(browser)
+    output = process.communicate(timeout=300)[0]
+    assert process.returncode == 0, output
+    assert errors == []
+    assert "completed: 40 iterations" in output
+    assert port_is_free(port)
+
+
+def test_headless_play_records_for_the_static_player(repo, tmp_path, browser):
+    """play.py --headless writes cartpole.viser beside the GIF, for every task; ``python -m cartpole_warp.viz.web``
+    serves it in viser's player, which loads it without console errors."""
+    from cartpole_warp import tasks
+
+    for task in tasks.names():
+        out = tmp_path / task
+        result = subprocess.run([sys.executable, str(repo / "play.py"), "--agent", "zero", "--headless", "--task",
+                                 task, "--num-envs", "4", "--steps", "40", "--output", str(out)], cwd=repo,
+                                capture_output=True, text=True, timeout=300)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert (out / "cartpole.viser").stat().st_size > 1000
+    port = free_port()
+    process = subprocess.Popen([sys.executable, "-m", "cartpole_warp.viz.web",
+                                str(tmp_path / tasks.DEFAULT_TASK / "cartpole.viser"), str(port)], cwd=repo,
+                               text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        url = re.search(r"watch it at (http://\S+)", process.stdout.readline()).group(1)
+        open_page(browser, url)
+        time.sleep(2)
+        errors = console_errors(browser)
+    finally:
+        stop(process)
+    assert errors == []
