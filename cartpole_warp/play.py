@@ -79,9 +79,10 @@ class PlayArgs(Generic[TaskT]):
     """With --headless, instead of the rollout: play --grid-episodes episodes in each cell of a grid of physical
     parameters (factors on the stage's values, without the run's randomization) and write <output>/robustness.csv
     and robustness.png (success: the time limit reached, and the task's reward per step where its rule asks)."""
-    grid_x: str = "pole_mass_kg"
-    """--eval: the parameter along the heatmap's x axis (a name of ``env.physical_params()``); its factors multiply
-    the stage's value, or are the values themselves where the stage's is 0 (damping, friction, action delay)."""
+    grid_x: str | None = None
+    """--eval: the parameter along the heatmap's x axis (a name of ``env.physical_params()``; default: the mass of the
+    task's last joint role, pole_mass_kg for the cart-pole tasks); its factors multiply the stage's value, or are the
+    values themselves where the stage's is 0 (damping, friction, action delay)."""
     grid_x_factors: list[float] = field(default_factory=lambda: [0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0])
     grid_y: str = "actuator_scale"
     """--eval: the parameter along the y axis."""
@@ -92,11 +93,11 @@ class PlayArgs(Generic[TaskT]):
     grid_episodes: int = 64
     """--eval: episodes per cell (one env each)."""
 
-    def grid(self) -> list:
-        """The --eval axes."""
+    def grid(self, joint_roles: tuple[str, ...]) -> list:
+        """The --eval axes for a task with these joint roles."""
         from .robustness import Axis
 
-        named = [(self.grid_x, self.grid_x_factors), (self.grid_y, self.grid_y_factors),
+        named = [(self.grid_x or f"{joint_roles[-1]}_mass_kg", self.grid_x_factors), (self.grid_y, self.grid_y_factors),
                  (self.grid_z, self.grid_z_factors)]
         return [Axis(name, tuple(factors)) for name, factors in named if name is not None]
 
@@ -139,7 +140,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
         require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
         require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
-        axes = args.grid()
+        axes = args.grid(tasks.get(cfg.task).env_class.joint_roles)
         require(all(axis.factors and min(axis.factors) >= 0 for axis in axes),
                 "every --grid-*-factors list needs factors >= 0")
         cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
@@ -250,7 +251,7 @@ def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy, checkpoin
     """--eval: the grid's success rates, printed and written as CSV and PNG."""
     from .robustness import evaluate_grid, format_table, plot_heatmap, write_table
 
-    axes = args.grid()
+    axes = args.grid(tasks.get(cfg.task).env_class.joint_roles)
     print(f"{cfg.task}: {args.grid_episodes} episodes in each of {env.num_envs // args.grid_episodes} cells "
           f"({env.num_envs} envs) ...", flush=True)
     result = evaluate_grid(env, policy, axes, args.grid_episodes, tasks.get(cfg.task).solved)

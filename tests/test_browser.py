@@ -16,18 +16,14 @@ import pytest
 from conftest import system_command
 from PIL import Image
 
+from cartpole_warp.viz.web import free_port
+
 pytest.importorskip("viser", reason="needs the viser extra: pip install -e '.[viser]'")
 webdriver = pytest.importorskip("selenium.webdriver", reason="needs selenium: pip install -e '.[dev]'")
 
 INSTALL = "apt-get install -y chromium chromium-driver"
 SCREENSHOT = os.environ.get("CARTPOLE_VISER_SCREENSHOT")
 """Where to keep the page's screenshot (the README's), if set."""
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def port_is_free(port: int) -> bool:
