@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,18 +37,34 @@ MAX_NUM_ENVS = 2**24
 BYTES_PER_ENV = 7_000
 """Peak memory per env while building the scene (measured on the CPU with 262,144 envs: ~6.9 kB)."""
 
-Count = Annotated[int, pydantic.Strict(), pydantic.Field(ge=1)]
-"""An integer >= 1 (not a bool, not a float)."""
-NonNegativeInt = Annotated[int, pydantic.Strict(), pydantic.Field(ge=0)]
-Positive = Annotated[float, pydantic.Field(gt=0, allow_inf_nan=False)]
-"""A finite number > 0."""
-NonNegative = Annotated[float, pydantic.Field(ge=0, allow_inf_nan=False)]
+
+def _numpy_scalar(value: Any) -> Any:
+    """numpy's integer and floating scalars as Python ints and floats (bools and strings stay what they are, and the
+    strict number types below refuse them)."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, int)):
+        return int(value)
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, int, float)):
+        return float(value)
+    return value
+
+
+Number = pydantic.BeforeValidator(_numpy_scalar)
+"""Lets numpy scalars of the right kind through the strict types."""
+Count = Annotated[int, pydantic.Field(ge=1, strict=True), Number]
+"""An integer >= 1 (not a bool, a float or a string)."""
+NonNegativeInt = Annotated[int, pydantic.Field(ge=0, strict=True), Number]
+Positive = Annotated[float, pydantic.Field(gt=0, allow_inf_nan=False, strict=True), Number]
+"""A finite number > 0 (an int or a float; not a bool or a string)."""
+NonNegative = Annotated[float, pydantic.Field(ge=0, allow_inf_nan=False, strict=True), Number]
 """A finite number >= 0."""
-Finite = Annotated[float, pydantic.Field(allow_inf_nan=False)]
+Finite = Annotated[float, pydantic.Field(allow_inf_nan=False, strict=True), Number]
+"""A finite number."""
+Fraction = Annotated[float, pydantic.Field(ge=0, le=1, strict=True), Number]
+"""A number in [0, 1]."""
 Flag = Annotated[bool, pydantic.Strict()]
 """True or False (not 1, 0 or 'yes')."""
 Name = Annotated[str, pydantic.Field(min_length=1)]
-Seed = Annotated[int, pydantic.Strict(), pydantic.Field(ge=0, le=2**31 - 1 - 4096)]
+Seed = Annotated[int, pydantic.Field(ge=0, le=2**31 - 1 - 4096, strict=True), Number]
 """A non-negative int32 (the kernels take it as one; torchrun adds the rank)."""
 Range = tuple[Finite, Finite]
 """(low, high): a uniform draw from [low, high]; low == high fixes the value."""

@@ -305,8 +305,9 @@ class BatchedEnv(abc.ABC):
     """``kernel_params(config_class)``: the struct the task's functions take."""
     num_obs: ClassVar[int]
     num_actions: ClassVar[int]
-    stage: ClassVar[str]
-    """The task's stage shipped in usd/ (``sim.stage_path`` names another)."""
+    stage: ClassVar[str | Path]
+    """The task's stage: a file name in the package's usd/ folder, or the Path of a stage elsewhere (e.g. in an
+    installed package); ``sim.stage_path`` names another."""
     joint_roles: ClassVar[tuple[str, ...]]
     """The roles of the joints the task drives or reads, in the order of its ``Joints`` vectors."""
     task_ends: ClassVar[tuple[str, ...]] = ()
@@ -326,7 +327,8 @@ class BatchedEnv(abc.ABC):
         self.end_reasons = COMMON_ENDS + self.task_ends
         """Names of the ``end_reason`` codes, by code."""
         self._kernels = build_kernels(type(self))
-        stage = Path(cfg.sim.stage_path) if cfg.sim.stage_path else data_path("usd", self.stage)
+        stage = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
+                 else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
         joints = self.joints(cfg.task)
         cfg.randomization.validate(self.joint_roles)
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)

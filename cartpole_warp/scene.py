@@ -84,17 +84,17 @@ def check_units(path: Path):
                          "cartpole_warp simulates stages in metres and kilograms (both 1): rescale the stage")
 
 
-def pick_joint(labels: list[str], joint: JointRole) -> int:
-    """Index of the joint whose prim path is ``joint.name`` or ends in ``/name``; StageError naming the candidates
-    when none or several match."""
+def pick_joint(labels: list[str], joint: JointRole, path: Path) -> int:
+    """Index of the joint whose prim path is ``joint.name`` or ends in ``/name``; StageError naming the stage file and
+    the candidates when none or several match."""
     name = joint.name
     found = [i for i, label in enumerate(labels) if label == name or label.endswith("/" + name)]
     if len(found) == 1:
         return found[0]
     if not found:
-        raise StageError(f"no joint named {name!r} for the {joint.role} joint (set {joint.key}); "
-                         f"the stage's joints: {', '.join(labels) or 'none'}")
-    raise StageError(f"{len(found)} joints match {name!r} for the {joint.role} joint: "
+        raise StageError(f"stage {path}: no joint named {name!r} for the {joint.role} joint (set {joint.key}); "
+                         f"its joints: {', '.join(labels) or 'none'}")
+    raise StageError(f"stage {path}: {len(found)} joints match {name!r} for the {joint.role} joint: "
                      f"{', '.join(labels[i] for i in found)}; give {joint.key} the full prim path")
 
 
@@ -113,7 +113,7 @@ def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelB
         raise StageError(f"cannot load USD stage {path}: {type(err).__name__}: {err}") from err
     labels = list(builder.joint_label)
     kinds = [newton.JointType(kind) for kind in builder.joint_type]
-    found = [pick_joint(labels, joint) for joint in joints]
+    found = [pick_joint(labels, joint, path) for joint in joints]
     for index, joint in zip(found, joints, strict=True):
         if kinds[index] != joint.kind:
             raise StageError(f"the {joint.role} joint {labels[index]} of {path} is {kinds[index].name.lower()}; it "

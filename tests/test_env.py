@@ -2,6 +2,8 @@
 input, set_state, close; and the balance task's own failures, config checks and stage errors."""
 
 import math
+import re
+from pathlib import Path
 
 import newton
 import pytest
@@ -24,7 +26,7 @@ def safe_states(env, n):
     """(n, 2 x joint roles) small, distinct states near the origin (within every task's limits)."""
     width = 2 * len(env.joint_roles)
     offsets = torch.tensor([0.2, 0.1, 0.05, -0.1] * (width // 4 + 1))[:width]
-    return (offsets + 0.01 * torch.arange(n).unsqueeze(1)).to(env.device)
+    return (offsets + 0.002 * torch.arange(n).unsqueeze(1)).to(env.device)
 
 
 def zero_actions(env):
@@ -363,11 +365,28 @@ def test_malformed_stage_and_missing_joint(tmp_path, device):
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(garbage)})
     renamed = tmp_path / "no_pole_joint.usda"
     write_stage_with_renamed_joint(renamed)
-    with pytest.raises(cartpole_warp.StageError,
-                       match=r"no joint named 'poleJoint' for the pole joint \(set task.pole_joint\)"):
+    with pytest.raises(cartpole_warp.StageError, match=re.escape(f"stage {renamed}: no joint named 'poleJoint' for the "
+                                                                 "pole joint (set task.pole_joint)")):
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(renamed)})
-    with pytest.raises(cartpole_warp.StageError, match="no joint named 'hinge' for the pole joint"):
+    with pytest.raises(cartpole_warp.StageError, match=re.escape(f"stage {data_path('usd', 'cartpole.usda')}: no "
+                                                                 "joint named 'hinge' for the pole joint")):
         cartpole_warp.make_env(num_envs=2, device=device, task={"pole_joint": "hinge"})
+
+
+def test_the_stages_of_one_and_two_poles_are_refused_by_the_other_task(device):
+    """Each task names what it found in the other's stage: the double pole's three joints on the single-pole stage
+    (no 'railCartJoint'), the single pole's two on Newton's double-pendulum stage (a third joint that moves)."""
+    newton_stage = cartpole_warp.tasks.get("cart-double-pole-balance").env_class.stage
+    with pytest.raises(cartpole_warp.StageError, match=re.escape(
+            f"stage {data_path('usd', 'cartpole.usda')}: no joint named 'railCartJoint' for the cart joint (set "
+            "task.cart_joint); its joints: /cartpole/cartJoint, /cartpole/poleJoint")):
+        cartpole_warp.tasks.make("cart-double-pole-balance", num_envs=2, device=device,
+                                 sim={"stage_path": str(data_path("usd", "cartpole.usda"))})
+    with pytest.raises(cartpole_warp.StageError, match=re.escape(
+            f"stage {newton_stage}: only the cart and pole joints may move, but it also has /cartPole/polePoleJoint "
+            "(revolute)")):
+        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(newton_stage)},
+                               task={"cart_joint": "railCartJoint", "pole_joint": "cartPoleJoint"})
 
 
 def edited_stage(path, edit):
@@ -412,8 +431,9 @@ def swinging_rail(stage):
 ])
 def test_stages_the_task_cannot_use_are_named(tmp_path, device, edit, message):
     stage = edited_stage(tmp_path / "edited.usda", edit)
-    with pytest.raises(cartpole_warp.StageError, match=message):
+    with pytest.raises(cartpole_warp.StageError, match=message) as error:
         cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": stage})
+    assert stage in str(error.value), "every stage error names the file"
 
 
 def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
@@ -424,14 +444,15 @@ def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
             return JointRole("cart", name, newton.JointType.PRISMATIC, "task.cart_joint")
         return JointRole("pole", name, newton.JointType.REVOLUTE, "task.pole_joint")
 
-    assert pick_joint(labels, role("hinge")) == 2
-    assert pick_joint(labels, role("/b/slide", cart=True)) == 1
-    with pytest.raises(cartpole_warp.StageError, match="2 joints match 'slide' for the cart joint: /a/slide, /b/slide; "
-                                                       "give task.cart_joint the full prim path"):
-        pick_joint(labels, role("slide", cart=True))
-    with pytest.raises(cartpole_warp.StageError, match=r"no joint named 'wheel' for the pole joint \(set "
-                                                       r"task.pole_joint\); the stage's joints: /a/slide"):
-        pick_joint(labels, role("wheel"))
+    path = Path("robot.usda")
+    assert pick_joint(labels, role("hinge"), path) == 2
+    assert pick_joint(labels, role("/b/slide", cart=True), path) == 1
+    with pytest.raises(cartpole_warp.StageError, match="stage robot.usda: 2 joints match 'slide' for the cart joint: "
+                                                       "/a/slide, /b/slide; give task.cart_joint the full prim path"):
+        pick_joint(labels, role("slide", cart=True), path)
+    with pytest.raises(cartpole_warp.StageError, match=r"stage robot.usda: no joint named 'wheel' for the pole joint "
+                                                       r"\(set task.pole_joint\); its joints: /a/slide"):
+        pick_joint(labels, role("wheel"), path)
 
 
 @pytest.mark.parametrize("task", TASKS)

@@ -17,6 +17,7 @@ from cartpole_warp.wrappers.gymnasium import env_ids
 TUTORIAL_ID = "cartpole_warp/CartpoleTutorial-v0"
 DEFAULT_ID = "cartpole_warp/Cartpole-v0"
 SWINGUP_ID = "cartpole_warp/CartpoleSwingup-v0"
+DOUBLE_POLE_ID = "cartpole_warp/CartDoublePole-v0"
 IDS = env_ids()
 """Every registered task's ids: id -> (task name, preset)."""
 SHORT_EPISODES = {"episode_length_s": 0.2}
@@ -34,7 +35,7 @@ def core_env(env_id, num_envs, **overrides):
 
 def test_every_task_has_ids_and_they_are_registered():
     assert IDS == {DEFAULT_ID: ("cartpole-balance", None), TUTORIAL_ID: ("cartpole-balance", "tutorial"),
-                   SWINGUP_ID: ("cartpole-swingup", None)}
+                   SWINGUP_ID: ("cartpole-swingup", None), DOUBLE_POLE_ID: ("cart-double-pole-balance", None)}
     assert {task for task, _ in IDS.values()} == set(cartpole_warp.tasks.names())
     assert set(IDS) <= set(gym.registry)
 

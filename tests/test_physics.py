@@ -92,6 +92,12 @@ def closed_form_rollout(state0, forces, dt, p, substeps=10):
         det = a11 * a22 - a12 * a21
         return np.array([xd, (b1 * a22 - a12 * b2) / det, thd, (a11 * b2 - a21 * b1) / det])
 
+    return rk4(deriv, state0, forces, dt, substeps)
+
+
+def rk4(deriv, state0, forces, dt, substeps):
+    """(len(forces), state size): classic Runge-Kutta of ``deriv(state, force)`` in ``substeps`` per ``dt``, each
+    force held constant over its ``dt``; the state after each ``dt``."""
     s = np.array(state0, dtype=np.float64)
     out = []
     h = dt / substeps
@@ -248,4 +254,103 @@ def test_randomized_envs_match_closed_form_each(solver, make):
         reference = closed_form_rollout(starts[i].numpy(), forces, PHYSICS_DT_S, p)
         err = np.abs(trajectory[:, i] - reference).max(axis=0)
         scale = np.abs(reference).max(axis=0)
+        assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"
+
+
+def double_pole_parameters():
+    """Newton's cart + double pendulum (``newton/examples/assets/cartpole.usda``), read from the stage: cart mass;
+    per pole its mass, hinge-to-COM distance, inertia about its COM around the hinge axis (X), and pole 1's
+    hinge-to-hinge length; gravity (UsdPhysics' magnitude: the stage authors none, so Earth's)."""
+    stage = Usd.Stage.Open(str(DOUBLE_POLE_STAGE))
+    hinge1 = UsdPhysics.RevoluteJoint(stage.GetPrimAtPath("/cartPole/cartPoleJoint"))
+    hinge2 = UsdPhysics.RevoluteJoint(stage.GetPrimAtPath("/cartPole/polePoleJoint"))
+    assert hinge1.GetAxisAttr().Get() == hinge2.GetAxisAttr().Get() == "X"
+    assert UsdPhysics.PrismaticJoint(stage.GetPrimAtPath("/cartPole/railCartJoint")).GetAxisAttr().Get() == "Y"
+    magnitude = UsdPhysics.Scene(stage.GetPrimAtPath("/physicsScene")).GetGravityMagnitudeAttr().Get()
+    p = {"cart_mass": UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartPole/cart")).GetMassAttr().Get(),
+         "gravity": 9.81 if math.isinf(magnitude) else magnitude}  # UsdPhysics: -inf means Earth's gravity
+    for i, (pole, hinge) in enumerate([("/cartPole/pole1", hinge1), ("/cartPole/pole2", hinge2)], start=1):
+        mass_api = UsdPhysics.MassAPI(stage.GetPrimAtPath(pole))
+        com = np.array(mass_api.GetCenterOfMassAttr().Get())
+        p[f"mass{i}"] = mass_api.GetMassAttr().Get()
+        p[f"com{i}"] = float(com[2] - hinge.GetLocalPos1Attr().Get()[2])
+        p[f"inertia{i}"] = float(mass_api.GetDiagonalInertiaAttr().Get()[0])
+    p["length1"] = float(hinge2.GetLocalPos0Attr().Get()[2] - hinge1.GetLocalPos1Attr().Get()[2])
+    return p
+
+
+def double_pole_rollout(state0, forces, dt, p, substeps=10):
+    """RK4 of a rigid cart and two rigid links in a chain (Lagrange equations); force held constant over each dt.
+
+    ``state0`` and the result are (x, x', theta1, theta1', theta2, theta2') with theta2 relative to link 1, as the
+    joints measure them. In absolute angles phi1 = theta1, phi2 = theta1 + theta2 (about +X, 0 upright) the links'
+    COMs sit at (y, z) = (x - c1 sin phi1, c1 cos phi1) and (x - l1 sin phi1 - c2 sin phi2, l1 cos phi1 + c2 cos phi2),
+    and with a1 = m1 c1 + m2 l1, a2 = m2 c2, b = m2 l1 c2, J1 = I1 + m1 c1^2 + m2 l1^2, J2 = I2 + m2 c2^2:
+
+        (m0 + m1 + m2) x'' - a1 cos phi1 phi1'' - a2 cos phi2 phi2'' = F - a1 sin phi1 phi1'^2 - a2 sin phi2 phi2'^2
+        -a1 cos phi1 x'' + J1 phi1'' + b cos(phi1 - phi2) phi2'' = g a1 sin phi1 - b sin(phi1 - phi2) phi2'^2
+        -a2 cos phi2 x'' + b cos(phi1 - phi2) phi1'' + J2 phi2'' = g a2 sin phi2 + b sin(phi1 - phi2) phi1'^2
+    """
+    m0, m1, m2, g = p["cart_mass"], p["mass1"], p["mass2"], p["gravity"]
+    c1, c2, l1 = p["com1"], p["com2"], p["length1"]
+    a1, a2, b = m1 * c1 + m2 * l1, m2 * c2, m2 * l1 * c2
+    j1, j2 = p["inertia1"] + m1 * c1 * c1 + m2 * l1 * l1, p["inertia2"] + m2 * c2 * c2
+
+    def deriv(s, force):
+        x, xd, f1, f1d, f2, f2d = s
+        mass = np.array([[m0 + m1 + m2, -a1 * math.cos(f1), -a2 * math.cos(f2)],
+                         [-a1 * math.cos(f1), j1, b * math.cos(f1 - f2)],
+                         [-a2 * math.cos(f2), b * math.cos(f1 - f2), j2]])
+        rhs = np.array([force - a1 * math.sin(f1) * f1d**2 - a2 * math.sin(f2) * f2d**2,
+                        g * a1 * math.sin(f1) - b * math.sin(f1 - f2) * f2d**2,
+                        g * a2 * math.sin(f2) + b * math.sin(f1 - f2) * f1d**2])
+        xdd, f1dd, f2dd = np.linalg.solve(mass, rhs)
+        return np.array([xd, xdd, f1d, f1dd, f2d, f2dd])
+
+    x, xd, t1, t1d, t2, t2d = state0
+    s = rk4(deriv, [x, xd, t1, t1d, t1 + t2, t1d + t2d], forces, dt, substeps)
+    return np.stack([s[:, 0], s[:, 1], s[:, 2], s[:, 3], s[:, 4] - s[:, 2], s[:, 5] - s[:, 3]], axis=1)
+
+
+DOUBLE_POLE_STAGE = Path(newton.examples.get_asset("cartpole.usda"))
+
+
+def test_double_pole_stage_parameters():
+    """Newton's stage: a 1 kg cart, two 0.25 kg poles of 1 m with their COM at the middle and a thin rod's inertia."""
+    p = double_pole_parameters()
+    assert (p["cart_mass"], p["mass1"], p["mass2"], p["gravity"]) == pytest.approx((1.0, 0.25, 0.25, 9.81))
+    assert (p["com1"], p["com2"], p["length1"]) == pytest.approx((0.5, 0.5, 1.0))
+    assert p["inertia1"] == p["inertia2"] == pytest.approx(0.25 * 1.0**2 / 12, rel=0.01)
+
+
+@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+def test_double_pole_trajectory_matches_closed_form(solver, make):
+    """One env step after another for 1.2 s (hanging starts) and 0.6 s (upright ones, where the chain is unstable and
+    differences grow fastest), through the cart-double-pole-balance env, against the closed-form cart + double
+    pendulum with the stage's parameters; same tolerance as the single pole's."""
+    p = double_pole_parameters()
+    starts = torch.tensor([[0.0, 0.0, math.pi - 0.3, 0.0, 0.4, 0.0], [0.5, -0.3, math.pi + 0.2, 0.5, -0.6, 1.0],
+                           [0.0, 0.2, 0.05, 0.0, -0.05, 0.3], [-0.5, 0.0, -0.1, 0.4, 0.15, -0.2]])
+    env = make(4, task_name="cart-double-pole-balance",
+               sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
+               task={"episode_length_s": None, "reset_dist_m": 100.0, "min_tip_height_m": -10.0})
+    assert env.cfg.task.max_push_effort_n == 40.0
+    env.set_state(starts.to(env.device))
+    steps = round(DURATION_S / PHYSICS_DT_S)
+    commands = actions(steps, (0.3, 0.2, -0.1))
+    commands = np.concatenate([commands, commands[:, :1]], axis=1)
+    trajectory = []
+    for k in range(steps):
+        obs, _, terminated, truncated, _ = env.step(torch.tensor(commands[k], dtype=torch.float32,
+                                                                 device=env.device).reshape(4, 1))
+        assert not (terminated.any() or truncated.any())
+        trajectory.append(obs.cpu().numpy().astype(np.float64)[:, [0, 3, 1, 4, 2, 5]])
+    trajectory = np.array(trajectory)
+    for i in range(4):
+        reference = double_pole_rollout(starts[i].numpy(), 40.0 * np.clip(commands[:, i], -1, 1), PHYSICS_DT_S, p)
+        length = steps if i < 2 else steps // 2
+        assert np.abs(reference[:length, 0]).max() < 3.5, "the cart stays clear of the rail's 4 m limits"
+        diff = trajectory[:length, i] - reference[:length]
+        diff[:, [2, 4]] = np.angle(np.exp(1j * diff[:, [2, 4]]))
+        err, scale = np.abs(diff).max(axis=0), np.abs(reference[:length]).max(axis=0)
         assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"

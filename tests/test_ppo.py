@@ -11,8 +11,10 @@ from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
-def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mixed_precision=False):
+def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mixed_precision=False,
+               obs_normalization=False):
     cfg = train_config()
+    cfg.agent.actor.obs_normalization = cfg.agent.critic.obs_normalization = obs_normalization
     cfg.agent.torch_compile_mode, cfg.agent.algorithm.use_mixed_precision = torch_compile_mode, use_mixed_precision
     cfg.env.num_envs = 64
     cfg.agent.algorithm.class_name = class_name
@@ -55,6 +57,24 @@ def test_sync_free_update_equals_rsl_rl_update(schedule):
             torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)
     if schedule == "adaptive":
         assert reference.alg.learning_rate != 1e-3, "the adaptive rule must have acted for the test to mean something"
+
+
+def test_observation_statistics_stay_in_the_tensors_the_graphs_read():
+    """With observation normalisation, SyncFreePPO's update leaves the normalizers' mean and std in the tensors they
+    started in (captured CUDA graphs read those), holding the statistics of every observation seen."""
+    runner = runner_for("SyncFreePPO", obs_normalization=True)
+    normalizers = [runner.alg.actor.obs_normalizer, runner.alg.critic.obs_normalizer]
+    tensors = [(n._mean, n._std) for n in normalizers]
+    seen = []
+    for _ in range(2):
+        collect(runner)
+        seen.append(runner.alg.storage.observations["policy"].flatten(0, 1).clone())
+        runner.alg.update()
+    seen = torch.cat(seen)
+    for normalizer, (mean, std) in zip(normalizers, tensors, strict=True):
+        assert normalizer._mean is mean and normalizer._std is std
+        torch.testing.assert_close(std[0], seen.std(dim=0, unbiased=False), rtol=1e-4, atol=1e-6)
+        torch.testing.assert_close(mean[0], seen.mean(dim=0), rtol=1e-4, atol=1e-6)
 
 
 def test_sync_free_ppo_loads_a_ppo_checkpoint_and_keeps_its_rate_tensor(tmp_path):

@@ -16,19 +16,22 @@ from cartpole_warp.env import END_NONE, TaskFunctions, kernel_params
 from cartpole_warp.evaluation import rollout
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runner import CartpoleRunner
-from cartpole_warp.tasks.cartpole import CartpoleConfig, CartpoleTaskEnv
+from cartpole_warp.tasks.cartpole import CartpoleConfig, CartTaskEnv
 from cartpole_warp.wrappers.gymnasium import register_envs
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
-def test_the_registry_finds_both_cartpole_tasks_and_names_the_known_ones():
-    assert tasks.names()[:2] == ["cartpole-balance", "cartpole-swingup"]
+def test_the_registry_finds_the_three_tasks_and_names_the_known_ones():
+    assert tasks.names()[:3] == ["cartpole-balance", "cart-double-pole-balance", "cartpole-swingup"]
     with pytest.raises(ConfigError, match="unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
-                                          "cartpole-swingup"):
+                                          "cart-double-pole-balance, cartpole-swingup"):
         tasks.make("cartpole-moonwalk")
-    balance, swingup = (tasks.make(name, num_envs=2) for name in ("cartpole-balance", "cartpole-swingup"))
-    assert (balance.num_obs, swingup.num_obs) == (4, 5) and type(balance) is not type(swingup)
-    assert swingup.max_episode_length == 500 and balance.max_episode_length == 600
+    balance, swingup, double = (tasks.make(name, num_envs=2) for name in
+                                ("cartpole-balance", "cartpole-swingup", "cart-double-pole-balance"))
+    assert (balance.num_obs, swingup.num_obs, double.num_obs) == (4, 5, 6)
+    assert double.joint_roles == ("cart", "pole1", "pole2") and double.scene.dofs_per_env == 3
+    assert len({type(balance), type(swingup), type(double)}) == 3
+    assert swingup.max_episode_length == 500 and balance.max_episode_length == double.max_episode_length == 600
 
 
 def test_a_preset_for_another_task_is_refused(tmp_path):
@@ -73,7 +76,7 @@ def joint_forces(action: wp.types.vector(1, float), p: Params):
     return wp.vec2(p.max_push_effort_n * action[0], 0.0)
 
 
-class HoldStillEnv(CartpoleTaskEnv):
+class HoldStillEnv(CartTaskEnv):
     """observation (N, 3) [cart_pos, cart_vel, pole_vel]; reward exp(-cart_pos^2 - pole_vel^2); never terminates."""
 
     config_class = HoldStillConfig

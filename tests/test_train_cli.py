@@ -354,6 +354,25 @@ def test_the_swingup_trains_to_solved_on_the_cpu(tmp_path):
 
 
 @pytest.mark.slow
+def test_the_double_pole_trains_to_solved_on_the_cpu(tmp_path):
+    """The double pole's defaults (4096 envs, Newton's stage) on the CPU, seed 0: solved means finished training
+    episodes average >= 95% of the 10 s limit; the deterministic policy of that iteration then keeps >= 99% of 64
+    episodes up."""
+    result = run_script("train.py", "--task", "cart-double-pole-balance", "--device", "cpu", "--stop-when-solved",
+                        "--logger", "none", "--log-dir", tmp_path, timeout=1200)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = only_run(tmp_path, "cart-double-pole-balance")
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["solved"] and summary["task"] == "cart-double-pole-balance", summary
+    assert summary["final"]["mean_episode_length"] >= 0.95 * 600
+    result = run_script("play.py", "--headless", "--run", run, "--num-envs", "64")
+    assert result.returncode == 0, result.stderr
+    played = json.loads((run / "play" / "result.json").read_text())
+    assert played["task"] == "cart-double-pole-balance" and played["episodes"] == 64
+    assert played["time_limit_fraction"] >= 0.99
+
+
+@pytest.mark.slow
 def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
     import newton.examples
 

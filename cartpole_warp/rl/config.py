@@ -23,6 +23,7 @@ from ..config import (
     Count,
     EnvConfig,
     Flag,
+    Fraction,
     Name,
     NonNegative,
     NonNegativeInt,
@@ -92,9 +93,9 @@ class PpoConfig:
     """Mini-batches per epoch."""
     clip_param: Positive = 0.2
     """PPO ratio clip."""
-    gamma: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.99
+    gamma: Annotated[Fraction, pydantic.Field(gt=0)] = 0.99
     """Discount factor per env step."""
-    lam: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.95
+    lam: Fraction = 0.95
     """GAE lambda."""
     value_loss_coef: NonNegative = 1.0
     """Weight of the value loss."""

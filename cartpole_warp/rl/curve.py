@@ -25,8 +25,9 @@ def plot_learning_curve(path: Path, history: list[dict], env_dt_s: float, max_ep
         full = [h for h in finished if h.get("full_reward_per_step") is not None]
         top.plot([h["iteration"] + 1 for h in full], [h["full_reward_per_step"] for h in full], color="tab:green",
                  label="full-length episodes")
-    top.axhline(solved.min_reward_per_step, color="tab:red", linestyle="--",
-                label=f"solved: >= {solved.min_reward_per_step:g}")
+    if solved.min_reward_per_step is not None:
+        top.axhline(solved.min_reward_per_step, color="tab:red", linestyle="--",
+                    label=f"solved: >= {solved.min_reward_per_step:g}")
     top.set_ylabel("mean reward per step")
     bottom.plot(iterations, [h["mean_episode_length"] * env_dt_s for h in finished], color="tab:blue")
     if max_episode_length is not None and solved.min_length_fraction:

@@ -28,8 +28,8 @@ DEFAULT_TASK = "cartpole-balance"
 class SolvedRule:
     """When a task counts as solved, over the episodes that finished in one training iteration (or in a play)."""
 
-    min_reward_per_step: float
-    """Mean reward per step (episode return / episode length) at least this ..."""
+    min_reward_per_step: float | None = None
+    """Mean reward per step (episode return / episode length) at least this (None: any) ..."""
     min_length_fraction: float = 0.0
     """... and a mean episode length at least this fraction of the time limit ..."""
     full_episodes_only: bool = False
@@ -40,24 +40,26 @@ class SolvedRule:
         per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
         if per_step is None or summary.mean_length is None:
             return False
-        return (per_step >= self.min_reward_per_step
+        return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
                 and summary.mean_length >= self.min_length_fraction * max_episode_length)
 
     def episode_success(self, returns: Any, lengths: Any, reached_limit: Any) -> Any:
         """Per episode (tensors): it reached the time limit and, for a rule over full-length episodes, its reward per
         step (``returns / lengths``) meets the minimum."""
-        if not self.full_episodes_only:
+        if not self.full_episodes_only or self.min_reward_per_step is None:
             return reached_limit
         return reached_limit & (returns / lengths.clamp(min=1) >= self.min_reward_per_step)
 
     def describe(self, max_episode_length: int) -> str:
         """The rule in words."""
         episodes = "full-length episodes" if self.full_episodes_only else "finished episodes"
-        words = f"mean reward per step >= {self.min_reward_per_step:g} over one iteration's {episodes}"
+        conditions = []
+        if self.min_reward_per_step is not None:
+            conditions.append(f"mean reward per step >= {self.min_reward_per_step:g}")
         if self.min_length_fraction:
-            words += (f" and mean episode length >= {self.min_length_fraction:.0%} of the {max_episode_length}-step "
-                      "time limit")
-        return words
+            conditions.append(f"mean episode length >= {self.min_length_fraction:.0%} of the {max_episode_length}-step "
+                              "time limit")
+        return f"{' and '.join(conditions) or 'any'} over one iteration's {episodes}"
 
 
 @dataclass(frozen=True)

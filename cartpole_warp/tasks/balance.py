@@ -11,7 +11,7 @@ import warp as wp
 from ..config import Finite, NonNegative, Positive, require
 from ..env import END_NONE, FIRST_TASK_END, TaskFunctions, kernel_params
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartpoleTaskEnv, push_cart
+from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 POLE_FELL = wp.constant(FIRST_TASK_END + 1)
@@ -86,7 +86,7 @@ def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
     return wp.vec2(cart_pos, pole_angle), wp.vec2(cart_vel, pole_vel)
 
 
-class CartpoleBalanceEnv(CartpoleTaskEnv):
+class CartpoleBalanceEnv(CartTaskEnv):
     """Batched cartpole, the Isaac Sim "Custom RL Example using Stable Baselines" task.
 
     ==============  ==================================================================================

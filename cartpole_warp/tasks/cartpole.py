@@ -1,5 +1,5 @@
-"""What the cart-pole tasks share (no task itself): the settings that name the two joints and scale the cart force,
-and an env base whose joint roles are the cart (prismatic) and the pole (revolute)."""
+"""What the cart tasks share (no task itself): a cart on a prismatic joint pushed by the action, and revolute poles
+above it. A task's config names each joint (``<role>_joint``) and scales the cart force."""
 
 from __future__ import annotations
 
@@ -15,15 +15,21 @@ from ..scene import JointRole
 
 
 @dataclass
-class CartpoleConfig(TaskConfig):
-    """Settings of every cart-pole task."""
+class CartConfig(TaskConfig):
+    """Settings of every cart task."""
 
     cart_joint: Name = "cartJoint"
     """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
-    pole_joint: Name = "poleJoint"
-    """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
     max_push_effort_n: NonNegative = 400.0
     """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
+
+
+@dataclass
+class CartpoleConfig(CartConfig):
+    """Settings of every cart-pole task (one pole)."""
+
+    pole_joint: Name = "poleJoint"
+    """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
 
 
 @wp.func
@@ -33,8 +39,9 @@ def push_cart(action: wp.types.vector(1, float), p: Any):
     return wp.vec2(p.max_push_effort_n * action[0], 0.0)
 
 
-class CartpoleTaskEnv(BatchedEnv):
-    """A cart on a rail and a pole hinged to it: joint roles ('cart', 'pole'), one action (the cart force)."""
+class CartTaskEnv(BatchedEnv):
+    """A cart on a rail (joint role 'cart', prismatic) and the poles hinged above it (every further role, revolute),
+    each role's joint named by the config field ``<role>_joint``; one action (the cart force)."""
 
     joint_roles = ("cart", "pole")
     num_actions = 1
@@ -43,6 +50,7 @@ class CartpoleTaskEnv(BatchedEnv):
         """``force_per_action_n``: the cart force (N) of action 1."""
         return {"force_per_action_n": self.cfg.task.max_push_effort_n * values["actuator_scale"]}
 
-    def joints(self, task: CartpoleConfig) -> list[JointRole]:
-        return [JointRole("cart", task.cart_joint, newton.JointType.PRISMATIC, "task.cart_joint"),
-                JointRole("pole", task.pole_joint, newton.JointType.REVOLUTE, "task.pole_joint")]
+    def joints(self, task: CartConfig) -> list[JointRole]:
+        kinds = [newton.JointType.PRISMATIC] + [newton.JointType.REVOLUTE] * (len(self.joint_roles) - 1)
+        return [JointRole(role, getattr(task, f"{role}_joint"), kind, f"task.{role}_joint")
+                for role, kind in zip(self.joint_roles, kinds, strict=True)]

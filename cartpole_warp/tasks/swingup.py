@@ -8,10 +8,10 @@ from dataclasses import dataclass
 
 import warp as wp
 
-from ..config import NonNegative, Positive
+from ..config import Finite, NonNegative, Positive
 from ..env import END_NONE, TaskFunctions, kernel_params
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartpoleTaskEnv, push_cart
+from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 
 
 @dataclass
@@ -26,7 +26,7 @@ class SwingupConfig(CartpoleConfig):
     """``small_control`` = (4 + quadratic tolerance(action, margin, value_at_margin=0)) / 5."""
     velocity_margin_rad_s: Positive = 5.0
     """``small_velocity`` = (1 + tolerance(pole_vel, margin)) / 2 (rad/s)."""
-    reset_pole_angle_rad: float = math.pi
+    reset_pole_angle_rad: Finite = math.pi
     """Resets start the pole at this angle (pi: hanging down) plus noise (rad)."""
     reset_noise: NonNegative = 0.01
     """Standard deviation of the Gaussian noise added to every joint position and velocity at reset (m, rad, m/s,
@@ -79,7 +79,7 @@ def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
     return wp.vec2(cart_pos, pole_angle), wp.vec2(cart_vel, pole_vel)
 
 
-class CartpoleSwingupEnv(CartpoleTaskEnv):
+class CartpoleSwingupEnv(CartTaskEnv):
     """Batched cart-pole swing-up, dm_control's ``cartpole.swingup`` with its smooth reward.
 
     ==============  ==================================================================================

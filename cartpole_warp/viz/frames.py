@@ -137,6 +137,28 @@ def _convex_hull(points: np.ndarray) -> list[tuple[float, float]]:
     return lower[:-1] + upper[:-1]
 
 
+def view_bounds(geometry: Geometry, frames: Sequence[np.ndarray], reach: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) view coordinates (right, up; m) holding the shapes in every one of ``frames`` (body transforms);
+    ``reach`` also holds the moving shapes turned upside down about the static shapes' centre: everywhere a live
+    robot can swing (a taller robot gets a taller box)."""
+    corners = np.concatenate([c for transforms in frames for _, c in geometry.outlines(transforms)])
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    if reach:
+        moving = np.concatenate([c for transforms in frames for shape, c in geometry.outlines(transforms)
+                                 if shape.body >= 0])
+        static = [c for shape, c in geometry.outlines(frames[0]) if shape.body < 0]
+        center = np.concatenate(static).mean(axis=0)[1] if static else moving[:, 1].mean()
+        span = np.abs(moving[:, 1] - center).max()
+        low[1], high[1] = min(low[1], center - span), max(high[1], center + span)
+    return low, high
+
+
+def env_bounds(env: BatchedEnv) -> tuple[np.ndarray, np.ndarray]:
+    """``view_bounds`` of env 0 as it is now, with its reach: the space one env needs in a live view."""
+    geometry = Geometry(env.scene.model, world=0)
+    return view_bounds(geometry, [geometry.body_transforms(env.scene.state_0)], reach=True)
+
+
 class SideView:
     """Draws the shapes of one env inside fixed bounds (view coordinates, m) at ``width_px``; the height follows the
     bounds' aspect, both rounded to even pixels (video encoders need them)."""
@@ -152,15 +174,7 @@ class SideView:
                reach: bool = False) -> SideView:
         """Bounds holding the shapes in every one of ``frames`` (body transforms), with a 5% margin; ``reach`` also
         holds the moving shapes turned upside down (for live frames, whose future poses are unknown)."""
-        corners = np.concatenate([c for transforms in frames for _, c in geometry.outlines(transforms)])
-        low, high = corners.min(axis=0), corners.max(axis=0)
-        if reach:
-            moving = np.concatenate([c for transforms in frames for shape, c in geometry.outlines(transforms)
-                                     if shape.body >= 0])
-            static = [c for shape, c in geometry.outlines(frames[0]) if shape.body < 0]
-            center = np.concatenate(static).mean(axis=0)[1] if static else moving[:, 1].mean()
-            span = np.abs(moving[:, 1] - center).max()
-            low[1], high[1] = min(low[1], center - span), max(high[1], center + span)
+        low, high = view_bounds(geometry, frames, reach)
         margin = 0.05 * (high - low).max()
         return cls(geometry, low - margin, high + margin, width_px)
 

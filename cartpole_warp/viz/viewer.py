@@ -15,13 +15,12 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
+from .frames import env_bounds
 
 ROWS = 4
 """Envs shown: the first ones, one row each."""
-ROW_SPACING_M = 1.6
-"""Vertical distance between the rows (m)."""
-VIEW_WIDTH_M = 9.0
-"""Width of the view at the rows (m): an 8 m rail with a margin."""
+MARGIN_M = 0.5
+"""Space around each env's reach (m)."""
 
 
 class ViewerUnavailable(RuntimeError):
@@ -42,7 +41,8 @@ def check_viewer():
 
 
 def open_viewer(env: BatchedEnv):
-    """A ``ViewerGL`` showing the first envs of ``env.scene``, side-on (looking along -X at the Y rails, Z up)."""
+    """A ``ViewerGL`` showing the first envs of ``env.scene``, side-on (looking along -X at the Y rails, Z up), one
+    row each, spaced and framed by the robot's reach."""
     check_viewer()
     from newton.viewer import ViewerGL
 
@@ -52,13 +52,16 @@ def open_viewer(env: BatchedEnv):
         raise ViewerUnavailable(f"cannot open Newton's viewer ({type(err).__name__}: {err}); "
                                 "run with --headless instead") from None
     rows = min(ROWS, env.scene.num_envs)
+    low, high = env_bounds(env)
+    width_m, row_m = high - low + 2 * MARGIN_M
     viewer.set_model(env.scene.model)
     viewer.set_visible_worlds(range(rows))
-    viewer.set_world_offsets((0.0, 0.0, ROW_SPACING_M))
-    height_m = rows * ROW_SPACING_M + 0.5
+    viewer.set_world_offsets((0.0, 0.0, row_m))
     tan_half_fov = math.tan(math.radians(viewer.camera.fov) / 2)
-    distance_m = max(height_m, VIEW_WIDTH_M * 720 / 1280) / (2 * tan_half_fov)
-    viewer.set_camera(wp.vec3(distance_m, 0.0, (rows - 1) * ROW_SPACING_M / 2 + 0.5), pitch=0.0, yaw=180.0)
+    distance_m = max(rows * row_m, width_m * 720 / 1280) / (2 * tan_half_fov)
+    centre = (low + high) / 2
+    viewer.set_camera(wp.vec3(distance_m, float(centre[0]), (rows - 1) * row_m / 2 + float(centre[1])), pitch=0.0,
+                      yaw=180.0)
     return viewer
 
 

@@ -23,11 +23,12 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
+from .frames import env_bounds
 from .viewer import ViewerUnavailable
 
 VISER_EXTRA = "pip install 'cartpole_warp[viser]'"
-GRID_SPACING_M = (0.0, 9.0, 1.6)
-"""Offsets between the shown envs: 9 m along the rail (Y), 1.6 m up (Z)."""
+MARGIN_M = 0.5
+"""Space around each env's reach (m)."""
 CAMERA_FOV_DEG = 50.0
 """Vertical field of view assumed when framing the grid (viser's default is near it)."""
 
@@ -55,18 +56,22 @@ class WebViewer:
         self.num_shown = min(num_shown, env.scene.num_envs)
         self.viewer.set_model(model)
         self.viewer.set_visible_worlds(range(self.num_shown))
-        self.viewer.set_world_offsets(GRID_SPACING_M)
-        self._frame_grid(model.up_axis)
+        low, high = env_bounds(env)
+        width_m, height_m = high - low + 2 * MARGIN_M
+        spacing = (0.0, float(width_m), float(height_m))
+        self.viewer.set_world_offsets(spacing)
+        self._frame_grid(model.up_axis, spacing, (low + high) / 2)
         self._shown = wp.array(model.articulation_world.numpy() < self.num_shown, dtype=wp.bool, device=model.device)
 
-    def _frame_grid(self, up_axis):
-        """Camera side-on (looking along -X), far enough to see every shown env's rail."""
-        offsets = newton.utils.compute_world_offsets(self.num_shown, GRID_SPACING_M, up_axis)
-        width_m = np.ptp(offsets[:, 1]) + GRID_SPACING_M[1]
-        height_m = np.ptp(offsets[:, 2]) + 2 * GRID_SPACING_M[2]
+    def _frame_grid(self, up_axis, spacing: tuple[float, float, float], env_centre: np.ndarray):
+        """Camera side-on (looking along -X), far enough to see every shown env's reach."""
+        offsets = newton.utils.compute_world_offsets(self.num_shown, spacing, up_axis)
+        width_m = np.ptp(offsets[:, 1]) + spacing[1]
+        height_m = np.ptp(offsets[:, 2]) + spacing[2]
         distance_m = max(height_m, width_m / 1.2) / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
         centre = offsets.mean(axis=0)
-        self.viewer.set_camera(wp.vec3(distance_m, float(centre[1]), float(centre[2]) + 0.5), pitch=0.0, yaw=180.0)
+        self.viewer.set_camera(wp.vec3(distance_m, float(centre[1] + env_centre[0]), float(centre[2] + env_centre[1])),
+                               pitch=0.0, yaw=180.0)
 
     def is_running(self) -> bool:
         return self.viewer.is_running()

@@ -1,0 +1,159 @@
+"""cart-double-pole-balance: two poles hinged in a chain on a cart, kept upright, in the spirit of Gymnasium's
+``InvertedDoublePendulum`` (alive bonus minus tip-distance and velocity penalties), on Newton's own stage (the robot of
+its ``robot_cartpole`` example, found in the installed ``newton`` package). The spec is ``CartDoublePoleEnv``'s
+docstring."""
+
+from __future__ import annotations
+
+import importlib.resources
+from dataclasses import dataclass
+from pathlib import Path
+
+import warp as wp
+
+from ..config import Finite, Name, NonNegative, Positive, require
+from ..env import END_NONE, FIRST_TASK_END, TaskFunctions, kernel_params
+from . import SolvedRule, Task, register
+from .cartpole import CartConfig, CartTaskEnv
+
+CART_OUT = wp.constant(FIRST_TASK_END)
+TIP_FELL = wp.constant(FIRST_TASK_END + 1)
+NEWTON_STAGE = Path(str(importlib.resources.files("newton"))) / "examples" / "assets" / "cartpole.usda"
+"""Newton's cart + double pendulum: a 1 kg cart on an 8 m rail, two 1 m poles of 0.25 kg hinged in a chain."""
+
+
+@dataclass
+class DoublePoleConfig(CartConfig):
+    """A cart with two poles in a chain: joints, cart force, pole lengths, reward, termination and reset ranges."""
+
+    cart_joint: Name = "railCartJoint"
+    """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
+    pole1_joint: Name = "cartPoleJoint"
+    """The stage's revolute joint between the cart and the first pole."""
+    pole2_joint: Name = "polePoleJoint"
+    """The stage's revolute joint between the first and the second pole."""
+    max_push_effort_n: NonNegative = 40.0
+    """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
+    pole1_length_m: Positive = 1.0
+    """Distance from the first pole's hinge to the second's (m): the stage's, for the tip in the reward."""
+    pole2_length_m: Positive = 1.0
+    """Distance from the second pole's hinge to its tip (m): the stage's, for the tip in the reward."""
+    reset_dist_m: Positive = 3.0
+    """Terminate when |cart_pos| exceeds this (m)."""
+    min_tip_height_m: Finite = 1.5
+    """Terminate when the second pole's tip is less than this high above the cart's hinge (m)."""
+    alive_reward: Finite = 1.0
+    """Constant term of the reward."""
+    tip_pos_weight: NonNegative = 0.001
+    """Weight of the tip's squared distance (m^2) along the rail from the rail's centre."""
+    tip_height_weight: NonNegative = 0.1
+    """Weight of the tip's squared drop (m^2) below its upright height (pole1_length_m + pole2_length_m)."""
+    pole1_vel_weight: NonNegative = 0.0001
+    """Weight of pole1_vel^2 (per (rad/s)^2)."""
+    pole2_vel_weight: NonNegative = 0.0005
+    """Weight of pole2_vel^2 (per (rad/s)^2)."""
+    reset_cart_pos_m: NonNegative = 0.5
+    """Reset samples cart_pos ~ U(-this, this) (m)."""
+    reset_pole_angle_rad: NonNegative = 0.1
+    """Reset samples each pole's angle ~ U(-this, this) (rad)."""
+    reset_vel: NonNegative = 0.1
+    """Reset samples each joint's velocity ~ U(-this, this) (m/s or rad/s)."""
+
+    def validate(self, env) -> None:
+        require(self.reset_cart_pos_m < self.reset_dist_m,
+                f"task.reset_cart_pos_m={self.reset_cart_pos_m:g} must be below task.reset_dist_m="
+                f"{self.reset_dist_m:g} (else episodes end as they start)")
+        require(self.min_tip_height_m < self.pole1_length_m + self.pole2_length_m,
+                f"task.min_tip_height_m={self.min_tip_height_m:g} must be below the upright tip height "
+                f"task.pole1_length_m + task.pole2_length_m={self.pole1_length_m + self.pole2_length_m:g}")
+
+
+Params = kernel_params(DoublePoleConfig)
+
+
+@wp.func
+def tip(q: wp.vec3, p: Params):
+    """The second pole's tip: (position along the rail (m), height above the cart's hinge (m)). A pole angle turns
+    about +X with the rail along Y (Newton's stage): a positive angle leans the pole toward -Y."""
+    absolute2 = q[1] + q[2]
+    along = q[0] - p.pole1_length_m * wp.sin(q[1]) - p.pole2_length_m * wp.sin(absolute2)
+    height = p.pole1_length_m * wp.cos(q[1]) + p.pole2_length_m * wp.cos(absolute2)
+    return along, height
+
+
+@wp.func
+def observe(q: wp.vec3, qd: wp.vec3, p: Params):
+    return wp.types.vector(q[0], q[1], q[2], qd[0], qd[1], qd[2], length=6, dtype=float)
+
+
+@wp.func
+def evaluate(q: wp.vec3, qd: wp.vec3, action: wp.types.vector(1, float), p: Params):
+    along, height = tip(q, p)
+    end = END_NONE
+    if wp.abs(q[0]) > p.reset_dist_m:
+        end = CART_OUT
+    elif height < p.min_tip_height_m:
+        end = TIP_FELL
+    drop = p.pole1_length_m + p.pole2_length_m - height
+    reward = (p.alive_reward - p.tip_pos_weight * along * along - p.tip_height_weight * drop * drop
+              - p.pole1_vel_weight * qd[1] * qd[1] - p.pole2_vel_weight * qd[2] * qd[2])
+    return reward, end
+
+
+@wp.func
+def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
+    s = rng_state[env]
+    q = wp.vec3(wp.randf(s, -p.reset_cart_pos_m, p.reset_cart_pos_m),
+                wp.randf(s, -p.reset_pole_angle_rad, p.reset_pole_angle_rad),
+                wp.randf(s, -p.reset_pole_angle_rad, p.reset_pole_angle_rad))
+    qd = wp.vec3(wp.randf(s, -p.reset_vel, p.reset_vel), wp.randf(s, -p.reset_vel, p.reset_vel),
+                 wp.randf(s, -p.reset_vel, p.reset_vel))
+    rng_state[env] = s
+    return q, qd
+
+
+@wp.func
+def push_cart(action: wp.types.vector(1, float), p: Params):
+    return wp.vec3(p.max_push_effort_n * action[0], 0.0, 0.0)
+
+
+class CartDoublePoleEnv(CartTaskEnv):
+    """Batched cart + double pendulum balance, in the spirit of Gymnasium's ``InvertedDoublePendulum``.
+
+    ==============  ==================================================================================
+    observation     (N, 6) float32: [cart_pos (m), pole1_angle (rad), pole2_angle (rad), cart_vel (m/s),
+                    pole1_vel (rad/s), pole2_vel (rad/s)]; pole1_angle from upright, pole2_angle relative to
+                    pole 1 (as its joint measures it)
+    action          (N, 1) or (N,) float32, clipped to [-1, 1]; cart force = 40 N * action
+    reward          1 - 0.001 tip_pos^2 - 0.1 (2 m - tip_height)^2 - 1e-4 pole1_vel^2 - 5e-4 pole2_vel^2:
+                    tip_pos (m) = cart_pos - sin(pole1_angle) - sin(pole1_angle + pole2_angle) is the tip of
+                    pole 2 along the rail, tip_height (m) = cos(pole1_angle) + cos(pole1_angle + pole2_angle)
+                    its height above the cart's hinge (1 m poles)
+    terminated      |cart_pos| > 3 m ('cart_out_of_range') or tip_height < 1.5 m ('tip_fell'), on the state
+                    after the physics step
+    truncated       episode length reaches ``max_episode_length`` env steps (10 s)
+    reset           cart_pos ~ U(-0.5, 0.5); pole1_angle, pole2_angle ~ U(-0.1, 0.1); each velocity
+                    ~ U(-0.1, 0.1); one RNG state per env, seeded by ``seed``
+    state           ``set_state``: (N, 6) [cart_pos, cart_vel, pole1_angle, pole1_vel, pole2_angle, pole2_vel]
+    ==============  ==================================================================================
+    """
+
+    config_class = DoublePoleConfig
+    params_type = Params
+    num_obs = 6
+    stage = NEWTON_STAGE
+    joint_roles = ("cart", "pole1", "pole2")
+    task_ends = ("cart_out_of_range", "tip_fell")
+    functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=push_cart)
+
+
+TASK = register(Task(
+    name="cart-double-pole-balance",
+    env_class=CartDoublePoleEnv,
+    summary="keep two poles in a chain upright on a cart (Newton's cart + double pendulum, 40 N cart, 10 s episodes)",
+    solved=SolvedRule(min_length_fraction=0.95),
+    play_metric="time_limit_fraction",
+    defaults={"agent": {"num_steps_per_env": 16, "max_iterations": 300, "actor": {"obs_normalization": True},
+                        "critic": {"obs_normalization": True}}},
+    gym_ids={"cartpole_warp/CartDoublePole-v0": None},
+))
