@@ -239,8 +239,11 @@ def _field_type(owner: Any, name: str) -> Any:
     """The type of field ``name`` of the dataclass ``owner`` (a generic alias such as ``EnvConfig[X]`` resolved)."""
     origin = typing.get_origin(owner) or owner
     hint = typing.get_type_hints(origin)[name]
-    if isinstance(hint, TypeVar) and typing.get_origin(owner) is not None:
-        hint = dict(zip(origin.__parameters__, typing.get_args(owner)))[hint]
+    bindings = dict(zip(getattr(origin, "__parameters__", ()), typing.get_args(owner)))
+    if isinstance(hint, TypeVar):
+        hint = bindings.get(hint, hint)
+    elif dataclasses.is_dataclass(typing.get_origin(hint)):  # e.g. EnvConfig[TaskT] inside TrainConfig[X]
+        hint = typing.get_origin(hint)[tuple(bindings.get(arg, arg) for arg in typing.get_args(hint))]
     return typing.get_origin(hint) if typing.get_origin(hint) is Annotated else hint
 
 

@@ -155,7 +155,9 @@ def test_vector_env_matches_core_env_step_for_step(env_id):
         assert (final["end_reason"][truncated] == core.end_reasons.index("time_limit")).all()
         assert (final["end_reason"][terminated] >= 2).all(), "a failure or a non-finite state"
     assert saw_truncated
-    assert saw_terminated == bool(core.task_ends), "only a task with failures terminates (at 400 N it does)"
+    assert saw_terminated <= bool(core.task_ends), "only a task with failures terminates"
+    if core.task_ends and type(core).__name__ == "CartpoleBalanceEnv":
+        assert saw_terminated, "random 400 N pushes end balance episodes early (the double pole's 40 N do not)"
 
 
 @pytest.mark.parametrize("task", cartpole_warp.tasks.names())

@@ -57,7 +57,8 @@ def test_physical_params_shapes_units_bounds_and_model(task_name, make):
     for r, role in enumerate(("cart", "pole")):
         np.testing.assert_allclose(mass[:, bodies[r]], params[f"{role}_mass_kg"].cpu().numpy(), rtol=1e-6)
     np.testing.assert_allclose(model.body_inv_mass.numpy().reshape(512, -1), 1 / mass, rtol=1e-5)
-    com = np.linalg.norm(model.body_com.numpy().reshape(512, -1, 3)[:, bodies[1]], axis=1)
+    hinge = model.joint_X_c.numpy().reshape(512, -1, 7)[:, roles[1], :3]  # the joint in the pole's frame
+    com = np.linalg.norm(model.body_com.numpy().reshape(512, -1, 3)[:, bodies[1]] - hinge, axis=1)
     np.testing.assert_allclose(com, params["pole_com_m"].cpu().numpy(), rtol=1e-5)
     damping = model.joint_damping.numpy().reshape(512, -1)[:, env.scene.role_dofs[1]]
     np.testing.assert_allclose(damping, params["pole_damping_n_m_s_rad"].cpu().numpy(), rtol=1e-6)

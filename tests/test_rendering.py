@@ -102,14 +102,17 @@ def mean_row(mask):
 @pytest.mark.parametrize("task", TASKS)
 def test_a_frame_shows_the_pole_where_the_state_puts_it(task, pole_angle):
     """Located by colour; where the cart and the pole share one (the swing-up stage), the pole is told apart by
-    what differs from the frame with the pole upright over the cart at the same place."""
+    what differs from the frame with the pole upright over the cart at the same place. The double pole's second pole
+    (same colour) stays in line with the first."""
     env = cartpole_warp.tasks.make(task, num_envs=5)
     frames = EnvFrames(env)
     states = torch.tensor([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, pole_angle, 0.0], [1.0, 0.0, 0.0, 0.0],
                            [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, math.pi, 0.0]])
-    env.set_state(states)
+    env.set_state(torch.nn.functional.pad(states, (0, 2 * len(env.joint_roles) - 4)))  # further poles straight on
+    model = env.scene.model
+    pole_body = model.body_label[model.joint_child.numpy()[env.scene.role_joints[1]]].rsplit("/", 1)[-1]
     colours = {shape.name: tuple(round(255 * c) for c in shape.color_srgb) for shape in frames._geometry(0).shapes}
-    pole, cart, rail = colours["pole"], colours["cart"], colours["rail"]
+    pole, cart, rail = colours[pole_body], colours["cart"], colours["rail"]
     upright = pixels_of(frames[0], pole)  # the upright pole (and the cart where it has the pole's colour)
     tilted = pixels_of(frames[1], pole) & ~upright
     hanging = pixels_of(frames[4], pole) & ~upright

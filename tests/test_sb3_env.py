@@ -67,7 +67,9 @@ def test_vec_env_steps_like_the_core_env_with_sb3_infos(task):
             saw_terminated |= bool(c_term[i])
         returns[dones], lengths[dones] = 0.0, 0
     assert saw_truncated
-    assert saw_terminated == bool(core.task_ends), "only a task with failures terminates (at 400 N it does)"
+    assert saw_terminated <= bool(core.task_ends), "only a task with failures terminates"
+    if core.task_ends and type(core).__name__ == "CartpoleBalanceEnv":
+        assert saw_terminated, "random 400 N pushes end balance episodes early (the double pole's 40 N do not)"
     assert venv.episode_count >= num_envs * 2
 
 

@@ -29,7 +29,7 @@ def test_the_registry_finds_the_three_tasks_and_names_the_known_ones():
     balance, swingup, double = (tasks.make(name, num_envs=2) for name in
                                 ("cartpole-balance", "cartpole-swingup", "cart-double-pole-balance"))
     assert (balance.num_obs, swingup.num_obs, double.num_obs) == (4, 5, 6)
-    assert double.joint_roles == ("cart", "pole1", "pole2") and double.scene.dofs_per_env == 3
+    assert double.joint_roles == ("cart", "pole", "pole2") and double.scene.dofs_per_env == 3
     assert len({type(balance), type(swingup), type(double)}) == 3
     assert swingup.max_episode_length == 500 and balance.max_episode_length == double.max_episode_length == 600
 

@@ -1,5 +1,6 @@
 """What the cart tasks share (no task itself): a cart on a prismatic joint pushed by the action, and revolute poles
-above it. A task's config names each joint (``<role>_joint``) and scales the cart force."""
+above it (role 'pole' hinged to the cart, further ones to the pole below). A task's config names each joint
+(``<role>_joint``) and scales the cart force."""
 
 from __future__ import annotations
 
@@ -15,21 +16,15 @@ from ..scene import JointRole
 
 
 @dataclass
-class CartConfig(TaskConfig):
-    """Settings of every cart task."""
+class CartpoleConfig(TaskConfig):
+    """Settings of every cart task: the joints of the cart and of the pole hinged to it, and the cart force."""
 
     cart_joint: Name = "cartJoint"
     """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
+    pole_joint: Name = "poleJoint"
+    """The stage's revolute joint of the pole on the cart: its name, or its full prim path where the name repeats."""
     max_push_effort_n: NonNegative = 400.0
     """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
-
-
-@dataclass
-class CartpoleConfig(CartConfig):
-    """Settings of every cart-pole task (one pole)."""
-
-    pole_joint: Name = "poleJoint"
-    """The stage's revolute joint of the pole: its name, or its full prim path where the name repeats."""
 
 
 @wp.func
@@ -50,7 +45,7 @@ class CartTaskEnv(BatchedEnv):
         """``force_per_action_n``: the cart force (N) of action 1."""
         return {"force_per_action_n": self.cfg.task.max_push_effort_n * values["actuator_scale"]}
 
-    def joints(self, task: CartConfig) -> list[JointRole]:
+    def joints(self, task: CartpoleConfig) -> list[JointRole]:
         kinds = [newton.JointType.PRISMATIC] + [newton.JointType.REVOLUTE] * (len(self.joint_roles) - 1)
         return [JointRole(role, getattr(task, f"{role}_joint"), kind, f"task.{role}_joint")
                 for role, kind in zip(self.joint_roles, kinds, strict=True)]

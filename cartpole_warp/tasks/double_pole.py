@@ -14,7 +14,7 @@ import warp as wp
 from ..config import Finite, Name, NonNegative, Positive, require
 from ..env import END_NONE, FIRST_TASK_END, TaskFunctions, kernel_params
 from . import SolvedRule, Task, register
-from .cartpole import CartConfig, CartTaskEnv
+from .cartpole import CartpoleConfig, CartTaskEnv
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 TIP_FELL = wp.constant(FIRST_TASK_END + 1)
@@ -23,15 +23,15 @@ NEWTON_STAGE = Path(str(importlib.resources.files("newton"))) / "examples" / "as
 
 
 @dataclass
-class DoublePoleConfig(CartConfig):
+class DoublePoleConfig(CartpoleConfig):
     """A cart with two poles in a chain: joints, cart force, pole lengths, reward, termination and reset ranges."""
 
     cart_joint: Name = "railCartJoint"
     """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
-    pole1_joint: Name = "cartPoleJoint"
-    """The stage's revolute joint between the cart and the first pole."""
+    pole_joint: Name = "cartPoleJoint"
+    """The stage's revolute joint between the cart and pole 1 (joint role 'pole')."""
     pole2_joint: Name = "polePoleJoint"
-    """The stage's revolute joint between the first and the second pole."""
+    """The stage's revolute joint between pole 1 and pole 2 (joint role 'pole2')."""
     max_push_effort_n: NonNegative = 40.0
     """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
     pole1_length_m: Positive = 1.0
@@ -136,13 +136,16 @@ class CartDoublePoleEnv(CartTaskEnv):
                     ~ U(-0.1, 0.1); one RNG state per env, seeded by ``seed``
     state           ``set_state``: (N, 6) [cart_pos, cart_vel, pole1_angle, pole1_vel, pole2_angle, pole2_vel]
     ==============  ==================================================================================
+
+    Joint roles 'cart', 'pole' (pole 1, on the cart) and 'pole2': the cart-pole tasks' presets (e.g. ``robust``)
+    randomize the cart and pole 1 of this one too.
     """
 
     config_class = DoublePoleConfig
     params_type = Params
     num_obs = 6
     stage = NEWTON_STAGE
-    joint_roles = ("cart", "pole1", "pole2")
+    joint_roles = ("cart", "pole", "pole2")
     task_ends = ("cart_out_of_range", "tip_fell")
     functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=push_cart)
 
