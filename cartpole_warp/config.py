@@ -1,11 +1,12 @@
-"""The config engine (machinery): constrained field types, checks of dicts against dataclasses, presets as partial
-YAML overlays, ``ConfigError``; and the dataclasses every env shares (``SimConfig``, ``TaskConfig``, ``EnvConfig``).
+"""The config engine (machinery): constrained field types, checks of dicts against dataclasses, merges of partial
+overrides, ``ConfigError``; and the dataclasses every env shares (``SimConfig``, ``TaskConfig``, ``EnvConfig``).
 
 The dataclass defaults are the single source of truth. A task's own settings are a ``TaskConfig`` subclass in its
-task module; ``EnvConfig[BalanceConfig]`` is the env configuration of that task. A preset (``configs/<name>.yaml``) is
-a partial override; tyro turns the same dataclasses into command-line flags (``--env.sim.solver mujoco``, docstrings
-become ``--help``), and pydantic checks dicts (presets, a run's saved ``config.yaml``, keyword overrides) against
-their types, once at each boundary (``from_dict``). No warp or newton here.
+task module; ``EnvConfig[BalanceConfig]`` is the env configuration of that task. A preset (``configs/<name>.yaml``,
+loaded and checked by ``presets``) is a partial override; tyro turns the same dataclasses into command-line flags
+(``--env.sim.solver mujoco``, docstrings become ``--help``), and pydantic checks dicts (presets, a run's saved
+``config.yaml``, keyword overrides) against their types, once at each boundary (``from_dict``). No warp or newton
+here.
 """
 
 from __future__ import annotations
@@ -15,14 +16,10 @@ import math
 import numbers
 import typing
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import pydantic
 import tyro
-import yaml
-
-from .files import data_path
 
 Solver = Literal["featherstone", "mujoco"]
 """Newton solvers: ``SolverFeatherstone`` or ``SolverMuJoCo`` (on mujoco-warp)."""
@@ -94,9 +91,9 @@ class SimConfig:
     mass_matrix_interval: Count = 2
     """SolverFeatherstone recomputes the joint-space mass matrix every this many physics steps; must divide
     decimation (the captured step replays the choice)."""
-    stage_path: str | None = None
+    stage_path: Name | None = None
     """USD stage holding the robot's articulation (metres, kilograms; any up axis and prim names); None: the task's
-    stage shipped with the package (usd/)."""
+    own stage (an empty path is refused)."""
     capture: Capture = "auto"
     """Graph capture of the env step: 'auto' (CUDA, and CPU where measured faster: always), 'on' or 'off'."""
     cpu_threads: NonNegativeInt = 0
@@ -298,22 +295,3 @@ def overrides_dict(overrides: Any, where: str) -> dict:
     """``overrides`` checked to be a mapping (ConfigError naming ``where`` otherwise)."""
     require(isinstance(overrides, dict), f"{where} expected a mapping, got {overrides!r}")
     return overrides
-
-
-def presets() -> list[str]:
-    """Names of the presets shipped with the package."""
-    return sorted(p.stem for p in data_path("configs").glob("*.yaml"))
-
-
-def load_preset(preset: str) -> dict:
-    """The overrides a preset holds, as a nested dict: a name under ``configs/`` or a path to a YAML file."""
-    path = Path(preset)
-    if path.suffix not in (".yaml", ".yml"):
-        path = data_path("configs", f"{preset}.yaml")
-        require(path.is_file(), f"unknown preset {preset!r}; known presets: {', '.join(presets())}")
-    require(path.is_file(), f"config file {path} does not exist")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ConfigError(f"cannot parse {path}: {err}") from None
-    return overrides_dict(data, f"{path}: expected a mapping at the top level;")

@@ -14,7 +14,9 @@ Also installed as ``python -m cartpole_warp.train``.
 
 from __future__ import annotations
 
+import gc
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Generic, Literal
@@ -22,7 +24,7 @@ from typing import Annotated, Generic, Literal
 import tyro
 
 from . import tasks
-from .cli import asks_help, clean_errors, parse, peek, quiet_libraries, with_default_value
+from .cli import asks_help, clean_errors, parse, peek, process_age_s, quiet_libraries, with_default_value
 from .config import ConfigError, TaskT, require
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
@@ -54,7 +56,8 @@ class TrainArgs(Generic[TaskT]):
 
 def task_list() -> str:
     """The registered tasks, one line each, for --help."""
-    return "tasks (--task):\n" + "\n".join(f"    {name:<18} {tasks.get(name).summary}" for name in tasks.names())
+    width = max(map(len, tasks.names()))
+    return "tasks (--task):\n" + "\n".join(f"    {name:<{width}}  {tasks.get(name).summary}" for name in tasks.names())
 
 
 def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
@@ -98,10 +101,13 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
 
 
 def main(argv: list[str] | None = None) -> int:
+    timing_s = {"start": process_age_s()} if argv is None else {}
+    clock = time.perf_counter()
     quiet_libraries()
     with clean_errors(ConfigError, RunError, StageError):
         ranks = Ranks.from_environment()
         cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
+        timing_s["config"] = time.perf_counter() - clock
         if args.viewer == "viser":
             from .viz.web import ViewerUnavailable, check_viser
 
@@ -109,17 +115,21 @@ def main(argv: list[str] | None = None) -> int:
                 check_viser()
             except ViewerUnavailable as err:
                 raise ConfigError(str(err)) from None
+        clock = time.perf_counter()
         import torch
 
         from .rl.training import Training
 
+        timing_s["imports"] = time.perf_counter() - clock
+
         say = print if ranks.writes else (lambda *args, **kwargs: None)
-        say(f"run folder: {run_dir}" + (f" (resuming from {checkpoint.name})" if checkpoint else ""))
         where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
         say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)
         training = None
         try:
             training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks)
+            training.timing_s = {k: v for k, v in timing_s.items() if v is not None} | training.timing_s
+            say(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
             say(f"ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
                 f"{training.task.solved.describe(training.max_episode_length)}", flush=True)
             if args.viewer == "viser" and ranks.writes:
@@ -146,6 +156,11 @@ def main(argv: list[str] | None = None) -> int:
         print("not solved yet: train longer (--max-iterations, or --resume)")
     print(f"artefacts in {run_dir}: {summary.checkpoint}, summary.json, learning_curve.png, "
           f"{', '.join(summary.exports)}\nwatch it: python play.py --headless --run {run_dir}")
+    if argv is None:
+        gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
+    total = process_age_s() if argv is None else None
+    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
+    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
     return 130 if summary.status == "interrupted" else 0
 
 

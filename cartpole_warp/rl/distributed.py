@@ -58,6 +58,9 @@ class Ranks:
         if not env.device.startswith("cuda"):
             raise ConfigError(f"training on {self.world_size} processes (torchrun) needs --device cuda, got "
                               f"{env.device!r}; run a single process for the CPU")
+        if cuda_devices == 0:
+            raise ConfigError(f"training on {self.world_size} processes (torchrun) needs a CUDA GPU per process, but "
+                              "torch sees no GPU on this host; run a single process with --device cpu instead")
         if self.local_rank >= cuda_devices:
             raise ConfigError(f"process {self.local_rank} of this host needs cuda:{self.local_rank}, but the host has "
                               f"{cuda_devices} CUDA device(s): start at most {cuda_devices} processes per node")

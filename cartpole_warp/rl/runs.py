@@ -149,6 +149,10 @@ class RunSummary:
     device: str
     checkpoint: str
     exports: list[str]
+    timing_s: dict[str, float] = field(default_factory=dict)
+    """Seconds by phase, from the process start to the summary: 'start' (Python and the command line's imports),
+    'config', 'imports' (torch, Warp, Newton, rsl-rl), 'scene', 'kernels', 'capture' (the env), 'networks' (rsl-rl's
+    runner, resume, config.yaml), 'training', 'export' (ONNX and TorchScript), 'curve'."""
     versions: dict[str, str] = field(default_factory=versions)
 
     def write(self, run_dir: Path) -> Path:

@@ -17,8 +17,9 @@ import pkgutil
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..config import ConfigError, EnvConfig, from_dict, load_preset, merge, overrides_dict
+from ..config import ConfigError, EnvConfig, from_dict, merge, overrides_dict
 from ..env import BatchedEnv
+from ..presets import load_preset
 
 DEFAULT_TASK = "cartpole-balance"
 """The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""

@@ -23,7 +23,8 @@ import warp as wp
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
-from ..config import Capture, ConfigError, EnvConfig, Solver, load_preset
+from ..config import Capture, ConfigError, EnvConfig, Solver
+from ..presets import load_preset
 from ..runtime import GraphReplay, resolve_device
 from ..scene import StageError
 

@@ -205,7 +205,8 @@ def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, fra
 
 
 class EnvFrames(Sequence):
-    """``frames[i]``: env ``i`` of a ``BatchedEnv`` now, as an (H, W, 3) uint8 array, drawn when asked (a vector
+    """``frames[i]``: env ``i`` of a ``BatchedEnv`` now, as an (H, W, 3) uint8 array, drawn when asked (a slice gives a
+    list of them) (a vector
     env's ``render()`` returns this sequence: rendering one env costs one picture, not ``num_envs``). The framing is
     fixed at construction from env 0: the widest static shape across, the moving shapes' reach up and down."""
 
@@ -228,7 +229,9 @@ class EnvFrames(Sequence):
     def __len__(self) -> int:
         return self.env.num_envs
 
-    def __getitem__(self, index: int) -> np.ndarray:
+    def __getitem__(self, index: int | slice) -> np.ndarray | list[np.ndarray]:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
         if not -len(self) <= index < len(self):
             raise IndexError(f"env {index} of {len(self)}")
         index %= len(self)
