@@ -66,6 +66,14 @@ def test_statistics_and_stop_are_reduced_over_processes(tmp_path):
     assert results[0] == results[1] == (3, 20.0, ("interrupted", "solved", "interrupted"), 1)
 
 
+def test_more_processes_than_gpus_are_refused_naming_the_count():
+    env = train_config().env
+    env.device = "cuda"
+    with pytest.raises(ConfigError, match="process 2 of this host needs cuda:2, but the host has 2 CUDA device"):
+        Ranks(world_size=4, rank=2, local_rank=2).env_config(env, cuda_devices=2)
+    assert Ranks(world_size=4, rank=1, local_rank=1).env_config(env, cuda_devices=2).device == "cuda:1"
+
+
 def test_only_rank_zero_writes_the_run(tmp_path):
     cfg = train_config()
     cfg.env.num_envs, cfg.agent.max_iterations = 64, 1
@@ -77,7 +85,7 @@ def test_only_rank_zero_writes_the_run(tmp_path):
 
 @pytest.mark.parametrize("variables, flags, message", [
     ({"WORLD_SIZE": "2", "RANK": "0", "LOCAL_RANK": "0"}, ["--device", "cpu"], "needs --device cuda"),
-    ({"WORLD_SIZE": "16", "RANK": "15", "LOCAL_RANK": "15"}, ["--device", "cuda"], "start at most"),
+    ({"WORLD_SIZE": "16", "RANK": "15", "LOCAL_RANK": "15"}, ["--device", "cuda"], "torch sees no GPU on this host"),
 ])
 def test_torchrun_errors_are_one_line(repo, tmp_path, variables, flags, message):
     result = subprocess.run([sys.executable, str(repo / "train.py"), "--num-envs", "64", "--log-dir", str(tmp_path),

@@ -311,7 +311,7 @@ def test_sigint_saves_and_resume_continues(tmp_path):
 
     result = run_script("train.py", "--resume", "--log-dir", tmp_path, "--max-iterations", "2")
     assert result.returncode == 0, result.stdout + result.stderr
-    assert f"resuming from model_{done - 1}.pt" in result.stdout
+    assert f"(resumed from model_{done - 1}.pt)" in result.stdout
     assert re.search(rf"it {done + 2}/{done + 2} \|", result.stdout), result.stdout
     summary = json.loads((run / "summary.json").read_text())
     steps_per_env = yaml.safe_load((run / "config.yaml").read_text())["agent"]["num_steps_per_env"]
