@@ -11,7 +11,6 @@ per task (Warp closures) and compiled into one module per task.
 
 import abc
 import functools
-import time
 import typing
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ import warp as wp
 from .config import EnvConfig, TaskConfig
 from .files import data_path
 from .randomization import Physics, add_friction
-from .runtime import Shard, ShardedStep, TorchOrder, resolve_device, shard_bounds
+from .runtime import Shard, ShardedStep, TorchOrder, resolve_device, shard_bounds, timed
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene
 
 END_NONE = wp.constant(0)
@@ -333,12 +332,12 @@ class BatchedEnv(abc.ABC):
         joints = self.joints(cfg.task)
         cfg.randomization.validate(self.joint_roles)
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
-        clock = time.perf_counter()
-        self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
-                       for i, (start, stop) in enumerate(bounds)]
-        self.build_time_s = {"scene": time.perf_counter() - clock}
+        self.build_time_s: dict[str, float] = {}
         """Seconds the construction took: 'scene' (stage import, replication, solver), 'kernels' (loading or
         compiling the Warp modules, first launches), 'capture' (the step's graphs)."""
+        with timed(self.build_time_s, "scene"):
+            self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
+                           for i, (start, stop) in enumerate(bounds)]
         self.params = params_of(self.params_type, cfg.task)
         self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
         self._order = TorchOrder(self.device)
@@ -347,14 +346,12 @@ class BatchedEnv(abc.ABC):
         """The per-env physical parameters and their draws."""
         self._noise_std = float(cfg.randomization.obs_noise_std)
         self._allocate()
-        clock = time.perf_counter()
-        self._seed(cfg.seed)
-        self._reset_all()
-        wp.synchronize_device(self.device)
-        self.build_time_s["kernels"] = time.perf_counter() - clock
-        clock = time.perf_counter()
-        self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
-        self.build_time_s["capture"] = time.perf_counter() - clock
+        with timed(self.build_time_s, "kernels"):
+            self._seed(cfg.seed)
+            self._reset_all()
+            wp.synchronize_device(self.device)
+        with timed(self.build_time_s, "capture"):
+            self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
 
     @property
     def scene(self) -> Scene:

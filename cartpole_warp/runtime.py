@@ -197,6 +197,16 @@ class PhaseClock:
         return [a.elapsed_time(b) / 1e3 for a, b in zip(self._marks, self._marks[1:])]
 
 
+@contextmanager
+def timed(seconds: dict[str, float], phase: str) -> Iterator[None]:
+    """Add the wall-clock seconds of the ``with`` block to ``seconds[phase]`` (host time: what a user waits)."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
+
+
 def capturing(device: str) -> bool:
     """Whether torch is capturing a CUDA graph on ``device``'s current stream (the env's own captured graph is then
     not replayed but its kernels launched into the outer capture)."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import gc
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Generic, Literal
@@ -29,6 +28,7 @@ from .config import ConfigError, TaskT, require
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
+from .runtime import timed
 from .scene import StageError
 
 
@@ -101,13 +101,13 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
 
 
 def main(argv: list[str] | None = None) -> int:
-    timing_s = {"start": process_age_s()} if argv is None else {}
-    clock = time.perf_counter()
+    age = process_age_s() if argv is None else None
+    timing_s = {"start": age} if age is not None else {}
     quiet_libraries()
     with clean_errors(ConfigError, RunError, StageError):
-        ranks = Ranks.from_environment()
-        cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
-        timing_s["config"] = time.perf_counter() - clock
+        with timed(timing_s, "config"):
+            ranks = Ranks.from_environment()
+            cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
         if args.viewer == "viser":
             from .viz.web import ViewerUnavailable, check_viser
 
@@ -115,20 +115,17 @@ def main(argv: list[str] | None = None) -> int:
                 check_viser()
             except ViewerUnavailable as err:
                 raise ConfigError(str(err)) from None
-        clock = time.perf_counter()
-        import torch
+        with timed(timing_s, "imports"):
+            import torch
 
-        from .rl.training import Training
-
-        timing_s["imports"] = time.perf_counter() - clock
+            from .rl.training import Training
 
         say = print if ranks.writes else (lambda *args, **kwargs: None)
         where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
         say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)
         training = None
         try:
-            training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks)
-            training.timing_s = {k: v for k, v in timing_s.items() if v is not None} | training.timing_s
+            training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)
             say(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
             say(f"ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
                 f"{training.task.solved.describe(training.max_episode_length)}", flush=True)

@@ -18,6 +18,7 @@ import torch
 
 from .. import tasks
 from ..config import ConfigError
+from ..runtime import timed
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
@@ -37,7 +38,7 @@ class Training:
     and rank 0 alone writes the run folder."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None,
-                 ranks: Ranks = SINGLE_PROCESS):
+                 ranks: Ranks = SINGLE_PROCESS, timing_s: dict[str, float] | None = None):
         self.cfg = cfg.validate()
         if cfg.agent.logger == "wandb" and importlib.util.find_spec("wandb") is None:
             raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
@@ -49,16 +50,16 @@ class Training:
             torch.set_num_threads(cfg.torch_threads)
         self.task = tasks.get(cfg.task)
         self.env = RslRlVecEnv(self.task.env_class(env_cfg))
-        self.timing_s = dict(self.env.env.build_time_s)
-        """Where the run's seconds went, by phase (train.py adds its own before ``run``; summary.json keeps them)."""
-        clock = time.perf_counter()
-        self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
-                                     self.run_dir if ranks.writes else None)
-        if resume_from is not None:
-            self.runner.load(str(resume_from))
-        if ranks.writes:
-            save_config(self.run_dir, cfg)
-        self.timing_s["networks"] = time.perf_counter() - clock
+        self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
+        """Where the run's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); summary.json keeps
+        them."""
+        with timed(self.timing_s, "networks"):
+            self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
+                                         self.run_dir if ranks.writes else None)
+            if resume_from is not None:
+                self.runner.load(str(resume_from))
+            if ranks.writes:
+                save_config(self.run_dir, cfg)
         self.setup_time_s = time.perf_counter() - start
         self._interrupts = 0
 
@@ -90,12 +91,10 @@ class Training:
             return None
         progress = self.runner.progress
         self.timing_s["training"] = progress.train_time_s
-        clock = time.perf_counter()
-        exports = self.runner.export(self.run_dir / EXPORT_DIR) if progress.iterations else []
-        self.timing_s["export"] = time.perf_counter() - clock
-        clock = time.perf_counter()
-        self.plot()
-        self.timing_s["curve"] = time.perf_counter() - clock
+        with timed(self.timing_s, "export"):
+            exports = self.runner.export(self.run_dir / EXPORT_DIR) if progress.iterations else []
+        with timed(self.timing_s, "curve"):
+            self.plot()
         last = next((h for h in reversed(progress.history) if h["episodes"]), {})
         has_limit = self.cfg.env.task.episode_length_s is not None
         summary = RunSummary(
