@@ -29,11 +29,18 @@ def process_age_s() -> float | None:
 
 def quiet_libraries():
     """The scripts' choice (the library changes no global setting): warnings but no info lines from Warp (greeting,
-    one line per module load) and Newton (e.g. where ViewerUSD saved)."""
+    one line per module load) and Newton (e.g. where ViewerUSD saved); the library's own progress lines (logger
+    ``cartpole_warp``, e.g. that kernels compile) on stdout."""
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
     logging.getLogger("newton").setLevel(logging.WARNING)
+    progress = logging.getLogger("cartpole_warp")
+    progress.setLevel(logging.INFO)
+    if not progress.handlers:
+        handler = logging.StreamHandler(sys.stdout)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        progress.addHandler(handler)
 
 
 def peek(argv: list[str], **flags: str | None) -> argparse.Namespace:

@@ -20,11 +20,14 @@ from typing import Any, ClassVar
 import torch
 import warp as wp
 
+from . import randomization
 from .config import EnvConfig, TaskConfig
 from .files import data_path
 from .randomization import Physics, add_friction
-from .runtime import Shard, ShardedStep, TorchOrder, resolve_device, shard_bounds, timed
-from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene
+from .runtime import Shard, ShardedStep, TorchOrder, load_modules, resolve_device, shard_bounds, timed, warp_output
+from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
+
+wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
 END_NONE = wp.constant(0)
 END_TIME_LIMIT = wp.constant(1)
@@ -320,6 +323,11 @@ class BatchedEnv(abc.ABC):
 
     def __init__(self, cfg: EnvConfig):
         self.cfg = cfg.validate()
+        with warp_output(cfg.verbose):
+            self._build(cfg)
+
+    def _build(self, cfg: EnvConfig):
+        """Scene, buffers, first reset and the step's graphs: every Warp module the env steps with is loaded here."""
         self.device = resolve_device(cfg.device)
         self.num_envs = cfg.num_envs
         self.max_episode_length = cfg.max_episode_length
@@ -335,6 +343,9 @@ class BatchedEnv(abc.ABC):
         self.build_time_s: dict[str, float] = {}
         """Seconds the construction took: 'scene' (stage import, replication, solver), 'kernels' (loading or
         compiling the Warp modules, first launches), 'capture' (the step's graphs)."""
+        with timed(self.build_time_s, "kernels"):
+            set_gradients(cfg.sim.solver, cfg.sim.gradients)
+            load_modules(self.warp_modules(), self.device, type(self).__name__)
         with timed(self.build_time_s, "scene"):
             self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
                            for i, (start, stop) in enumerate(bounds)]
@@ -352,6 +363,12 @@ class BatchedEnv(abc.ABC):
             wp.synchronize_device(self.device)
         with timed(self.build_time_s, "capture"):
             self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
+
+    def warp_modules(self) -> list[wp.Module]:
+        """The Warp modules this env launches kernels of (loaded when it is built): Newton's (but mujoco-warp's), the
+        machinery's, the randomization's and the task's."""
+        return [*preloadable_modules(self.cfg.sim.solver), wp.get_module(__name__),
+                wp.get_module(randomization.__name__), self._kernels.finish_step.module]
 
     @property
     def scene(self) -> Scene:
@@ -563,7 +580,7 @@ class BatchedEnv(abc.ABC):
         for name, value in values.items():
             self._check(name, value, ((n,),), value.dtype if isinstance(value, torch.Tensor) else torch.float32)
         self.physics.set(values)
-        with self._order:
+        with self._order, warp_output(self.cfg.verbose):
             for shard in self.shards:
                 self.physics.write(shard)
 

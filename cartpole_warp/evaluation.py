@@ -12,6 +12,8 @@ import torch
 
 from .env import BatchedEnv
 
+NO_LIMIT_STEPS = 1000
+"""Env steps an evaluation or play runs where the task has no time limit."""
 Policy = Callable[[torch.Tensor], torch.Tensor]
 """``policy(obs (N, num_obs)) -> actions (N, num_actions)``, torch tensors on one device."""
 
@@ -104,11 +106,12 @@ class FirstEpisodes:
 
 
 def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,
-                   reset: bool = True) -> FirstEpisodes:
-    """Reset ``env`` (unless ``reset`` is False: the episodes it has just begun) and run ``policy`` for ``steps`` env
-    steps without gradients; ``on_step(k)`` is called after the reset (k = 0) and after each step k (to record
-    pictures). An episode still running after ``steps`` counts as having reached the time limit."""
-    obs = env.reset()[0] if reset else env.get_observations()
+                   reset: bool = True, seed: int | None = None) -> FirstEpisodes:
+    """Reset ``env`` (re-seeded with ``seed`` where given: the same starts each time; unless ``reset`` is False: the
+    episodes it has just begun) and run ``policy`` for ``steps`` env steps without gradients; ``on_step(k)`` is called
+    after the reset (k = 0) and after each step k (to record pictures). An episode still running after ``steps``
+    counts as having reached the time limit."""
+    obs = env.reset(seed)[0] if reset else env.get_observations()
     if on_step is not None:
         on_step(0)
     finished = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
@@ -128,8 +131,19 @@ def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callabl
     return FirstEpisodes(returns, lengths, reached)
 
 
-def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None
-            ) -> EpisodeSummary:
+def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,
+            seed: int | None = None) -> EpisodeSummary:
     """``first_episodes`` summarised: statistics over each env's first episode; an episode still running after
     ``steps`` counts as full (the run's step cap), which only happens when ``steps`` < max_episode_length."""
-    return first_episodes(env, policy, steps, on_step).summary(min(steps, env.max_episode_length))
+    return first_episodes(env, policy, steps, on_step, seed=seed).summary(min(steps, env.max_episode_length))
+
+
+def whole_episode_steps(env: BatchedEnv) -> int:
+    """Env steps that play every first episode to its end: the time limit, or NO_LIMIT_STEPS without one."""
+    return env.max_episode_length if env.cfg.task.episode_length_s is not None else NO_LIMIT_STEPS
+
+
+def evaluate(env: BatchedEnv, policy: Policy, seed: int) -> EpisodeSummary:
+    """Each env's first episode from a reset seeded with ``seed`` to its end (``whole_episode_steps``): what
+    ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved')."""
+    return rollout(env, policy, whole_episode_steps(env), seed=seed)

@@ -1,6 +1,6 @@
 """Watch a policy on its task: statistics, a GIF and a USD recording (--headless) or Newton's viewer.
 
-    python play.py --headless                    # newest cartpole-balance run's latest checkpoint -> <run>/play/
+    python play.py --headless                    # newest cartpole-balance run's best checkpoint -> <run>/play/
     python play.py --headless --task cartpole-swingup     # newest run of that task
     python play.py --headless --run DIR          # or --checkpoint FILE
     python play.py --agent zero --headless       # no checkpoint needed (also: random)
@@ -27,11 +27,9 @@ from .cli import asks_help, clean_errors, parse, peek, quiet_libraries
 from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
 from .files import write_text
 from .rl.config import TrainConfig, checked, train_config
-from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_checkpoint, latest_run, load_config
+from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_run, load_config, play_checkpoint
 from .scene import StageError
 
-DEFAULT_PLAY_ENVS = 256
-NO_LIMIT_STEPS = 1000
 Agent = Literal["trained", "zero", "random"]
 Viewer = Literal["window", "viser", "none"]
 
@@ -47,7 +45,7 @@ class PlayArgs(Generic[TaskT]):
     run: Path | None = None
     """Run folder (default: the newest run under --log-dir)."""
     checkpoint: Path | None = None
-    """Checkpoint file (default: the run's latest)."""
+    """Checkpoint file (default: the run's best by its evaluations, model_best.pt, else its latest)."""
     log_dir: str = "logs"
     """Root folder of all runs (train.py's --log-dir)."""
     experiment_name: str | None = None
@@ -117,13 +115,13 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
                 raise RunError(f"checkpoint {checkpoint} not found")
         else:
             run = Path(first.run) if first.run else latest_run(first.log_dir, first.experiment_name or task)
-            checkpoint = latest_checkpoint(run)
+            checkpoint = play_checkpoint(run)
         saved = checkpoint.parent / CONFIG_FILE
         require(not (saved.is_file() and first.config), f"--config conflicts with the run's saved {saved}; "
                                                          "override its fields with flags instead")
         cfg = load_config(checkpoint.parent) if saved.is_file() else train_config(task, first.config)
         require(not first.task or first.task == cfg.task, f"--task {first.task}: the run was trained on {cfg.task}")
-    cfg.env.num_envs = DEFAULT_PLAY_ENVS
+    cfg.env.num_envs = cfg.eval.num_envs
     cls = PlayArgs[type(cfg.env.task)]
     args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), argv, __doc__)
     require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
@@ -175,7 +173,7 @@ def play(argv: list[str]) -> int:
             check_viewer()
         import torch
 
-        from .evaluation import random_policy, rollout, zero_policy
+        from .evaluation import random_policy, rollout, whole_episode_steps, zero_policy
 
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
@@ -214,14 +212,14 @@ def play(argv: list[str]) -> int:
         from .viz.record import VIDEO_EXTRA, Recorder, video_available
 
         has_limit = cfg.env.task.episode_length_s is not None
-        steps = args.steps or (env.max_episode_length if has_limit else NO_LIMIT_STEPS)
+        steps = args.steps or whole_episode_steps(env)
         output = output_dir(args, checkpoint)
         recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length)
-        stats = rollout(env, policy, steps, on_step=recorder)
+        stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
         pictures = recorder.close()
         limit = (f"the {cfg.env.task.episode_length_s:g} s time limit" if has_limit and steps >= env.max_episode_length
                  else f"the {steps}-step cap")
-        solved = task.solved(stats, min(steps, env.max_episode_length))
+        solved = task.solved(stats)
         print(f"{cfg.task}: {stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
               f"mean return {stats.mean_return:.2f}, mean length {stats.mean_length:.1f} steps "
               f"({stats.mean_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "

@@ -167,6 +167,24 @@ class RunnerConfig:
 
 
 @dataclass
+class EvalConfig:
+    """The deterministic evaluation that decides 'solved' and picks the best checkpoint: the policy's mean action,
+    each env's first episode from the run's seed to the time limit, on a separate batch of envs. With ``num_envs``
+    equal to play.py's --num-envs (256 by default) these are the episodes ``play.py --headless`` plays."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    num_envs: Count = 256
+    """Envs (one episode each) of an evaluation."""
+    min_interval: Count = 5
+    """Evaluate when an iteration's training episodes meet the task's solved rule, at most once in this many
+    iterations ..."""
+    max_interval: Count = 25
+    """... and after this many iterations without an evaluation (a policy that fails only through its exploration
+    noise)."""
+
+
+@dataclass
 class RunSettings:
     """Where runs go and what the console shows (the top-level fields of a training config besides its task, env
     and agent)."""
@@ -178,7 +196,8 @@ class RunSettings:
     console: Console = "compact"
     """Console output per iteration: 'compact' (one line) or 'rsl_rl' (rsl-rl's block)."""
     stop_when_solved: Flag = False
-    """End training at the first iteration that meets the 'solved' criterion."""
+    """End training at the first evaluation that meets the task's solved rule (``eval``)."""
+    eval: EvalConfig = field(default_factory=EvalConfig)
     torch_threads: NonNegativeInt = 1
     """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
     networks are tiny, and more threads fight the env and other processes for cores (10x slower when oversubscribed)."""

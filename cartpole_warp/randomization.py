@@ -22,6 +22,8 @@ import warp as wp
 from .config import ConfigError, RandomizationConfig
 from .scene import Scene
 
+wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
+
 FRICTION_VELOCITY = wp.constant(0.01)
 """Joint friction is -friction * tanh(velocity / this) (m/s or rad/s): Coulomb friction, smoothed so that it holds
 still a joint at rest without chattering at the physics step."""

@@ -4,6 +4,8 @@ and the order of torch and Warp work on CUDA. Nothing here knows the cartpole; a
 
 from __future__ import annotations
 
+import importlib
+import logging
 import os
 import sys
 import tempfile
@@ -19,6 +21,9 @@ import warp as wp
 
 from .config import ConfigError
 
+logger = logging.getLogger("cartpole_warp")
+"""The library's progress lines (INFO, e.g. that kernels compile): shown by train.py and play.py, silent in a library
+use unless the application configures logging."""
 MIN_ENVS_PER_SHARD = 512
 """Smallest shard worth its own scene and thread on the CPU."""
 _NO_DRIVER_WARNING = b"Could not find or load the NVIDIA CUDA driver"
@@ -46,6 +51,47 @@ def init_warp() -> None:
         kept = [line for line in captured.read().splitlines(keepends=True) if _NO_DRIVER_WARNING not in line]
     if kept:
         os.write(2, b"".join(kept))
+
+
+@contextmanager
+def warp_output(verbose: bool) -> Iterator[None]:
+    """Inside: Warp's info lines (its greeting, a line per module loaded or compiled) off, unless ``verbose``; Warp's
+    own setting is restored after (the library changes no global setting)."""
+    level = wp.config.log_level
+    if not verbose:
+        wp.config.log_level = max(level, wp.LOG_WARNING)
+    try:
+        yield
+    finally:
+        wp.config.log_level = level
+
+
+def compile_without_adjoints(*names: str) -> None:
+    """Warp's ``enable_backward`` option off on the named modules alone (imported first, so that their kernels are
+    registered): code that nothing here differentiates compiles 2-3x faster; other modules and Warp's global setting
+    keep theirs."""
+    for name in names:
+        module = wp.get_module(importlib.import_module(name).__name__)
+        if module.options.get("enable_backward") is not False:
+            wp.set_module_options({"enable_backward": False}, module=module)
+
+
+def cached(module: wp.Module, device: str) -> bool:
+    """Whether Warp's kernel cache holds ``module`` (as it is now, options included) built for ``device``'s kind of
+    launch: loading it then compiles nothing."""
+    block_dim = 1 if device == "cpu" else module.options["block_dim"]
+    return os.path.isdir(os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier(block_dim)))
+
+
+def load_modules(modules: list[wp.Module], device: str, what: str) -> None:
+    """Load ``modules`` on ``device`` now, compiling those the kernel cache lacks in parallel (Warp's compiler releases
+    the GIL), so that nothing compiles later inside a step; logs one line (logger ``cartpole_warp``, INFO) before it
+    compiles. ``what`` names them in that line."""
+    missing = [module for module in modules if not cached(module, device)]
+    if missing:
+        logger.info("compiling Warp kernels for %s on %s (first run with this code on this machine; cached in %s): "
+                    "%d modules ...", what, device, wp.config.kernel_cache_dir, len(missing))
+    wp.force_load(device=device, modules=modules, max_workers=max(1, min(len(missing), os.cpu_count() or 1)))
 
 
 def resolve_device(device: str) -> str:

@@ -8,11 +8,14 @@ lengths, inertias, limits, gravity) comes from the stage.
 
 from __future__ import annotations
 
+import importlib
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import newton
+import warp as wp
 
 from .config import BYTES_PER_ENV, ConfigError, SimConfig
 from .runtime import init_warp
@@ -20,6 +23,10 @@ from .runtime import init_warp
 SHARDABLE_SOLVERS = ("featherstone",)
 """Solvers whose CPU scenes can step in parallel threads; mujoco-warp's tile kernels share one CPU arena, so
 concurrent replays of MuJoCo scenes abort."""
+
+
+FEATHERSTONE_MODULE = "newton._src.solvers.featherstone.kernels"
+"""The Warp module of SolverFeatherstone's kernels."""
 
 
 class StageError(ConfigError):
@@ -135,9 +142,49 @@ def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBas
     return newton.solvers.SolverMuJoCo(model, disable_contacts=True)
 
 
+def model_modules() -> list[wp.Module]:
+    """The Warp modules of Newton that ``ModelBuilder.finalize`` loads (Newton 1.8, as Warp's module log of a build
+    shows them): the inertia checks and the shape BVH."""
+    from newton._src.geometry import inertia
+
+    return [wp.get_module("newton._src.geometry.bvh"), inertia.validate_and_correct_inertia_kernel.module,
+            inertia.compute_body_inverses_kernel.module]
+
+
+def solver_modules(solver: str) -> list[wp.Module]:
+    """The Warp modules of ``solver``: SolverFeatherstone's one module, or every module of mujoco-warp and Newton's
+    MuJoCo solver (each loaded only when one of its kernels launches)."""
+    if solver == "featherstone":
+        return [wp.get_module(importlib.import_module(FEATHERSTONE_MODULE).__name__)]  # its kernels registered
+    import mujoco_warp  # noqa: F401 (its modules are listed by name below)
+
+    prefixes = ("mujoco_warp.", "newton._src.solvers.mujoco.")
+    return [wp.get_module(name) for name in list(sys.modules) if name.startswith(prefixes)]
+
+
+def preloadable_modules(solver: str) -> list[wp.Module]:
+    """The Newton modules that a build with ``solver`` loads whole, to compile in parallel before it (after
+    ``set_gradients``: their options must be those the build loads them with); mujoco-warp's load as they launch."""
+    return model_modules() + (solver_modules(solver) if solver == "featherstone" else [])
+
+
+def set_gradients(solver: str, gradients: bool):
+    """Whether Newton's modules for ``solver`` compile their adjoint code: Warp's ``enable_backward`` option set on
+    those modules alone (not globally), where it differs. SolverFeatherstone's own options on its module (its
+    ``deterministic`` mode, as Newton 1.8 sets them when the solver is made) are set now too, so that a module loaded
+    before the solver exists is the one the solver steps with."""
+    for module in model_modules() + solver_modules(solver):
+        options = {"enable_backward": gradients}
+        if module.name == FEATHERSTONE_MODULE:
+            options |= {"deterministic": wp.config.deterministic, "deterministic_max_records": 0}
+        if any(module.options.get(name) != value for name, value in options.items()):
+            wp.set_module_options(options, module=module)
+
+
 def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints: list[JointRole]) -> Scene:
     """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
     init_warp()
+    set_gradients(sim.solver, sim.gradients)
     robot, role_joints = load_robot(stage, joints)
     builder = newton.ModelBuilder()
     try:

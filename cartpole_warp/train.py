@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)
             say(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
             say(f"ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
-                f"{training.task.solved.describe(training.max_episode_length)}", flush=True)
+                f"{training.solved_definition}", flush=True)
             if args.viewer == "viser" and ranks.writes:
                 from .viz.web import TrainingView
 

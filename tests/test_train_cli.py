@@ -74,8 +74,8 @@ def test_train_writes_every_artefact(trained):
     assert summary["env_steps_per_s"] > 0 and summary["device"] == "cpu" and summary["versions"]["rsl-rl-lib"]
     assert isinstance(summary["solved"], bool) and summary["checkpoint"] == "model_1.pt"
     rule = tasks.get(saved["task"]).solved
-    assert summary["task"] == saved["task"] and summary["solved_definition"] == rule.describe(
-        summary["max_episode_length"])
+    assert summary["task"] == saved["task"] and summary["solved_definition"].startswith(rule.describe())
+    assert summary["evaluation"] is None and summary["best"] is None, "no evaluation is due in 2 iterations"
     assert summary["final"]["mean_episode_length"] > 0
 
     image = Image.open(run / "learning_curve.png")
@@ -319,58 +319,56 @@ def test_sigint_saves_and_resume_continues(tmp_path):
     assert torch.load(run / f"model_{done + 1}.pt", weights_only=False)["iter"] == done + 1
 
 
+def train_to_solved_and_play(tmp_path, task: str, *flags) -> tuple[dict, dict]:
+    """train.py --stop-when-solved on the CPU with the task's defaults, then play.py --headless on the run (its best
+    checkpoint, eval.num_envs envs): (summary.json, play's result.json), after checking that the run stopped solved
+    and that play reproduces the evaluation that decided it, on the task's own metric.
+
+    What holds on any machine: a CPU elsewhere computes other floats (Warp's and torch's code for its instruction
+    set), so the trajectory, the iteration at which the run solves and the scores differ from machine to machine; but
+    on each machine play.py replays the very episodes of the evaluation that stopped the run (same seed, same envs,
+    the deterministic policy), so play meets the rule whenever the run stopped solved."""
+    result = run_script("train.py", "--task", task, "--device", "cpu", "--stop-when-solved", "--logger", "none",
+                        "--log-dir", tmp_path, *flags, timeout=1200)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = only_run(tmp_path, task)
+    summary = json.loads((run / "summary.json").read_text())
+    metric = tasks.get(task).play_metric
+    assert summary["solved"] and summary["status"] == "solved" and summary["task"] == task, summary
+    assert summary["best"] == {"iteration": summary["iterations"] - 1, "solved": True,
+                               metric: summary["solved_at"][metric]}, "the stop's policy is the best one"
+    result = run_script("play.py", "--headless", "--run", run)
+    assert result.returncode == 0, result.stderr
+    played = json.loads((run / "play" / "result.json").read_text())
+    assert played["task"] == task and played["episodes"] == summary["evaluation"]["episodes"] == 256
+    assert played["checkpoint"].endswith("model_best.pt") and played["solved"], played
+    assert played["play_value"] == summary["solved_at"][metric], "play replays the evaluation that decided 'solved'"
+    return summary, played
+
+
 @pytest.mark.slow
 def test_the_default_preset_trains_to_solved_on_the_cpu_and_plays_well(tmp_path):
-    result = run_script("train.py", "--device", "cpu", "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path,
-                        timeout=900)
-    assert result.returncode == 0, result.stdout + result.stderr
-    run = only_run(tmp_path)
-    summary = json.loads((run / "summary.json").read_text())
-    assert summary["solved"] and summary["status"] == "solved" and summary["num_envs"] == 4096, summary
-    assert summary["final"]["mean_episode_length"] >= 0.95 * 600 and summary["final"]["mean_reward_per_step"] >= 0.9
-    assert summary["collection_ms"] > 0 and summary["learning_ms"] > 0
-    assert not list(run.glob("events.out.tfevents.*")), "--logger none writes no metrics"
-    result = run_script("play.py", "--headless", "--run", run, "--num-envs", "64")
-    assert result.returncode == 0, result.stderr
-    assert json.loads((run / "play" / "result.json").read_text())["time_limit_fraction"] >= 0.9
+    summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance")
+    assert summary["num_envs"] == 4096 and summary["collection_ms"] > 0 and summary["learning_ms"] > 0
+    assert not list(only_run(tmp_path).glob("events.out.tfevents.*")), "--logger none writes no metrics"
+    assert played["time_limit_fraction"] >= 0.95 and played["mean_reward_per_step"] >= 0.9
 
 
 @pytest.mark.slow
 def test_the_swingup_trains_to_solved_on_the_cpu(tmp_path):
-    """The swing-up's defaults (4096 envs, 16 steps per env, observation normalisation) on the CPU, seed 1: solved means
-    full 10 s training episodes average >= 0.8 reward per step; the policy of that iteration then plays."""
-    result = run_script("train.py", "--task", "cartpole-swingup", "--device", "cpu", "--seed", "1",
-                        "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path, timeout=1200)
-    assert result.returncode == 0, result.stdout + result.stderr
-    run = only_run(tmp_path, "cartpole-swingup")
-    summary = json.loads((run / "summary.json").read_text())
-    assert summary["solved"] and summary["status"] == "solved" and summary["task"] == "cartpole-swingup", summary
-    assert summary["final"]["full_reward_per_step"] >= 0.8 and summary["final"]["full_episodes"] > 0
+    """The swing-up's defaults (4096 envs, 16 steps per env, observation normalisation), seed 1: solved means the
+    deterministic policy's full 10 s episodes average >= 0.8 reward per step (hanging still scores 0)."""
+    summary, played = train_to_solved_and_play(tmp_path, "cartpole-swingup", "--seed", "1")
     assert summary["solved_at"]["iterations"] <= 500
-    result = run_script("play.py", "--headless", "--run", run, "--num-envs", "64")
-    assert result.returncode == 0, result.stderr
-    played = json.loads((run / "play" / "result.json").read_text())
-    assert played["task"] == "cartpole-swingup" and played["episodes"] == 64 and played["time_limit_fraction"] == 1.0
-    assert played["play_value"] > 0.5, "the deterministic policy swings the pole up (hanging, upright = 0)"
+    assert played["full_reward_per_step"] >= 0.8 and played["time_limit_fraction"] == 1.0
 
 
 @pytest.mark.slow
 def test_the_double_pole_trains_to_solved_on_the_cpu(tmp_path):
-    """The double pole's defaults (4096 envs, Newton's stage) on the CPU, seed 0: solved means finished training
-    episodes average >= 95% of the 10 s limit; the deterministic policy of that iteration then keeps >= 99% of 64
-    episodes up."""
-    result = run_script("train.py", "--task", "cart-double-pole-balance", "--device", "cpu", "--stop-when-solved",
-                        "--logger", "none", "--log-dir", tmp_path, timeout=1200)
-    assert result.returncode == 0, result.stdout + result.stderr
-    run = only_run(tmp_path, "cart-double-pole-balance")
-    summary = json.loads((run / "summary.json").read_text())
-    assert summary["solved"] and summary["task"] == "cart-double-pole-balance", summary
-    assert summary["final"]["mean_episode_length"] >= 0.95 * 600
-    result = run_script("play.py", "--headless", "--run", run, "--num-envs", "64")
-    assert result.returncode == 0, result.stderr
-    played = json.loads((run / "play" / "result.json").read_text())
-    assert played["task"] == "cart-double-pole-balance" and played["episodes"] == 64
-    assert played["time_limit_fraction"] >= 0.99
+    """The double pole's defaults (4096 envs, Newton's stage): solved means >= 95% of the deterministic policy's
+    episodes keep the tip up for the whole 10 s."""
+    _, played = train_to_solved_and_play(tmp_path, "cart-double-pole-balance")
+    assert played["time_limit_fraction"] >= 0.95
 
 
 @pytest.mark.slow

@@ -135,23 +135,23 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert isaac_lab.actor.activation == isaac_lab.critic.activation == "elu", "Isaac Lab's cartpole uses ELU"
 
 
-def summary(length, per_step, full_per_step=None):
-    return EpisodeSummary(1, None, length, per_step, None, int(full_per_step is not None), full_per_step)
+def summary(time_limit_fraction, per_step, full_per_step=None):
+    return EpisodeSummary(1, None, None, per_step, time_limit_fraction, int(full_per_step is not None), full_per_step)
 
 
-def test_the_balance_task_is_solved_by_length_and_reward_per_step():
+def test_the_balance_task_is_solved_by_time_limit_fraction_and_reward_per_step():
     solved = tasks.get("cartpole-balance").solved
-    assert solved(summary(570, 0.9), 600)
-    assert not solved(summary(569, 0.99), 600)
-    assert not solved(summary(600, 0.89), 600)
-    assert not solved(EpisodeSummary(0, None, None, None, None), 600)
+    assert solved(summary(0.95, 0.9))
+    assert not solved(summary(0.949, 0.99))
+    assert not solved(summary(1.0, 0.89))
+    assert not solved(EpisodeSummary(0, None, None, None, None))
 
 
 def test_the_swingup_is_solved_by_the_reward_per_step_of_full_episodes():
     solved = tasks.get("cartpole-swingup").solved
-    assert solved(summary(100, 0.1, full_per_step=0.8), 500), "short first episodes do not count against it"
-    assert not solved(summary(500, 0.95), 500), "no full episode: not solved"
-    assert not solved(summary(500, 0.9, full_per_step=0.79), 500)
+    assert solved(summary(0.1, 0.1, full_per_step=0.8)), "short first episodes do not count against it"
+    assert not solved(summary(1.0, 0.95)), "no full episode: not solved"
+    assert not solved(summary(1.0, 0.9, full_per_step=0.79))
 
 
 def test_episode_stats_average_the_ended_episodes_and_the_full_ones():
@@ -226,10 +226,12 @@ def test_run_folders_are_found_newest_first_in_their_experiment(tmp_path):
 
 @pytest.mark.parametrize("task", tasks.names())
 def test_learning_curve_png_decodes(tmp_path, task):
-    history = [{"iteration": i, "episodes": i, "mean_reward_per_step": i / 10, "mean_episode_length": 60.0 * i,
+    history = [{"iteration": i, "episodes": i, "mean_reward_per_step": i / 10, "time_limit_fraction": i / 9,
                 "full_reward_per_step": i / 11 if i > 4 else None} for i in range(10)]
-    path = plot_learning_curve(tmp_path / "curve.png", history, env_dt_s=1 / 60, max_episode_length=600,
-                               solved=tasks.get(task).solved)
+    for i in (4, 9):
+        history[i]["evaluation"] = {"mean_reward_per_step": i / 9, "time_limit_fraction": i / 9,
+                                    "full_reward_per_step": i / 9}
+    path = plot_learning_curve(tmp_path / "curve.png", history, solved=tasks.get(task).solved)
     image = Image.open(path)
     image.load()
     assert image.size == (800, 600) and len(image.getcolors(maxcolors=100000)) > 50

@@ -59,6 +59,9 @@ class TrainConfig(RunSettings, Generic[TaskT]):
         self.env.validate()
         require(isinstance(self.env.task, tasks.get(self.task).env_class.config_class),
                 f"env.task holds {type(self.env.task).__name__}, not the settings of task {self.task!r}")
+        require(self.eval.min_interval <= self.eval.max_interval,
+                f"eval.min_interval ({self.eval.min_interval}) must be at most eval.max_interval "
+                f"({self.eval.max_interval})")
         rollout = self.env.num_envs * self.agent.num_steps_per_env
         mini_batches = self.agent.algorithm.num_mini_batches
         require(rollout % mini_batches == 0,

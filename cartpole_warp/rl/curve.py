@@ -11,35 +11,30 @@ from ..files import atomic_write
 from ..tasks import SolvedRule
 
 
-def plot_learning_curve(path: Path, history: list[dict], env_dt_s: float, max_episode_length: int | None,
-                        solved: SolvedRule) -> Path:
-    """PNG of the mean reward per step (of full-length episodes too, where the task's rule counts those) and the mean
-    episode length (s) of the episodes finished in each iteration, with the thresholds of the task's ``solved`` rule
-    as dashed lines; iterations counted from 1."""
-    finished = [h for h in history if h["episodes"]]
-    iterations = [h["iteration"] + 1 for h in finished]
+def plot_learning_curve(path: Path, history: list[dict], solved: SolvedRule) -> Path:
+    """PNG of the mean reward per step (of full-length episodes where the task's rule counts those) and the fraction
+    of episodes that reached the time limit: the training episodes finished in each iteration as lines, the
+    deterministic evaluations as dots, the thresholds of the task's ``solved`` rule as dashed lines; iterations
+    counted from 1."""
+    per_step = "full_reward_per_step" if solved.full_episodes_only else "mean_reward_per_step"
     figure = Figure(figsize=(8, 6), layout="constrained")
     top, bottom = figure.subplots(2, 1, sharex=True)
-    top.plot(iterations, [h["mean_reward_per_step"] for h in finished], color="tab:blue", label="finished episodes")
-    if solved.full_episodes_only:
-        full = [h for h in finished if h.get("full_reward_per_step") is not None]
-        top.plot([h["iteration"] + 1 for h in full], [h["full_reward_per_step"] for h in full], color="tab:green",
-                 label="full-length episodes")
-    if solved.min_reward_per_step is not None:
-        top.axhline(solved.min_reward_per_step, color="tab:red", linestyle="--",
-                    label=f"solved: >= {solved.min_reward_per_step:g}")
-    top.set_ylabel("mean reward per step")
-    bottom.plot(iterations, [h["mean_episode_length"] * env_dt_s for h in finished], color="tab:blue")
-    if max_episode_length is not None and solved.min_length_fraction:
-        limit_s = max_episode_length * env_dt_s
-        bottom.axhline(solved.min_length_fraction * limit_s, color="tab:red", linestyle="--",
-                       label=f"solved: >= {solved.min_length_fraction:.0%} of the {limit_s:g} s limit")
-    bottom.set_ylabel("mean episode length (s)")
-    bottom.set_xlabel("iteration")
-    bottom.xaxis.set_major_locator(MaxNLocator(integer=True))
-    for axes in (top, bottom):
+    for axes, key, threshold in ((top, per_step, solved.min_reward_per_step),
+                                 (bottom, "time_limit_fraction", solved.min_time_limit_fraction or None)):
+        trained = [h for h in history if h.get(key) is not None]
+        axes.plot([h["iteration"] + 1 for h in trained], [h[key] for h in trained], color="tab:blue",
+                  label="training episodes")
+        evaluated = [h for h in history if (h.get("evaluation") or {}).get(key) is not None]
+        axes.plot([h["iteration"] + 1 for h in evaluated], [h["evaluation"][key] for h in evaluated], "o",
+                  color="tab:green", label="evaluation (deterministic policy)")
+        if threshold is not None:
+            axes.axhline(threshold, color="tab:red", linestyle="--", label=f"solved: >= {threshold:g}")
         axes.grid(alpha=0.3)
         if axes.get_legend_handles_labels()[0]:
             axes.legend(loc="lower right")
-    top.set_title("finished episodes per iteration")
+    top.set_ylabel("mean reward per step" + (" (full episodes)" if solved.full_episodes_only else ""))
+    bottom.set_ylabel("episodes reaching the time limit")
+    bottom.set_xlabel("iteration")
+    bottom.xaxis.set_major_locator(MaxNLocator(integer=True))
+    top.set_title("episodes per iteration")
     return atomic_write(path, lambda tmp: figure.savefig(tmp, format="png", dpi=100))

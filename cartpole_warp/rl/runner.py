@@ -26,14 +26,15 @@ from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
 from .. import tasks
-from ..evaluation import EpisodeStats, EpisodeSummary, Policy
+from ..env import BatchedEnv
+from ..evaluation import EpisodeStats, EpisodeSummary, Policy, evaluate
 from ..files import atomic_write
 from ..runtime import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import joint_stop
 from .ppo import SyncFreePPO
-from .runs import Progress, RunError
+from .runs import BEST_CHECKPOINT, Progress, RunError
 
 
 class NullLogWriter(LogWriter):
@@ -58,13 +59,22 @@ def in_git_repository(path: str) -> bool:
 
 
 class CartpoleRunner(OnPolicyRunner):
-    """OnPolicyRunner for one training run: ``log_dir`` None writes nothing (no metrics, no checkpoints)."""
+    """OnPolicyRunner for one training run: ``log_dir`` None writes nothing (no metrics, no checkpoints).
 
-    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None):
+    With an ``eval_env`` (``cfg.eval.num_envs`` envs of the task, seeded with the run's seed) the deterministic policy
+    is evaluated over whole episodes (``evaluation.evaluate``: play.py's episodes) when an iteration's training
+    episodes meet the task's rule (at most every ``eval.min_interval`` iterations) and at least every
+    ``eval.max_interval``; only an evaluation decides 'solved', and the best one so far is kept as ``model_best.pt``.
+    """
+
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints its resolved observation sets
             super().__init__(env, cfg.agent.to_rsl_rl(), str(log_dir) if log_dir is not None else None, env.device)
         self.train_cfg = cfg
-        self.solved_rule = tasks.get(cfg.task).solved
+        task = tasks.get(cfg.task)
+        self.solved_rule, self.play_metric = task.solved, task.play_metric
+        self.eval_env = eval_env
+        self._last_eval_iteration = -1
         self.progress = Progress()
         self.episodes = EpisodeStats(env.device, env.max_episode_length)
         self.stop_reason: str | None = None
@@ -105,6 +115,7 @@ class CartpoleRunner(OnPolicyRunner):
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl says where it stores the code's git state
             self.logger.init_logging_writer()
         self._first_iteration = self.current_learning_iteration
+        self._last_eval_iteration = self._first_iteration - 1
         self._end_iteration = self._first_iteration + num_learning_iterations
         self._start = self._tick = time.perf_counter()
         for it in range(self._first_iteration, self._end_iteration):
@@ -161,16 +172,25 @@ class CartpoleRunner(OnPolicyRunner):
         stats = self.episodes.pop(all_processes=self.is_distributed)
         collect_time, learn_time = self._clock.seconds()
         now = time.perf_counter()
-        iteration_time, self._tick = now - self._tick, now
+        iteration_time = now - self._tick
         steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.gpu_world_size
-        solved = self.solved_rule(stats, self.env.max_episode_length)
+        evaluation = self._evaluate_if_due(it, stats)
+        self._tick = time.perf_counter()
+        solved = evaluation is not None and self.solved_rule(evaluation)
         p = self.progress
-        p.iterations, p.env_steps, p.train_time_s = it + 1, p.env_steps + steps, p.train_time_s + iteration_time
-        p.history.append({"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
-                          **_episode_means(stats), "env_steps_per_s": steps / iteration_time,
-                          "collection_ms": collect_time * 1e3, "learning_ms": learn_time * 1e3, "solved": solved})
+        p.iterations, p.env_steps = it + 1, p.env_steps + steps
+        p.train_time_s += self._tick - now + iteration_time
+        record = {"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
+                  **_episode_means(stats), "env_steps_per_s": steps / iteration_time,
+                  "collection_ms": collect_time * 1e3, "learning_ms": learn_time * 1e3, "solved": solved}
+        if evaluation is not None:
+            record["evaluation"] = _episode_means(evaluation) | {"seconds": round(self._tick - now, 3)}
+        p.history.append(record)
         if solved and p.solved_at is None:
-            p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3)}
+            p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
+                           self.play_metric: getattr(evaluation, self.play_metric)}
+        if evaluation is not None:
+            self._keep_if_best(it, evaluation, solved)
         if self.train_cfg.console == "rsl_rl":
             self.logger.log(it=it, start_it=self._first_iteration, total_it=self._end_iteration,
                             collect_time=collect_time, learn_time=learn_time, loss_dict=loss_dict,
@@ -178,11 +198,36 @@ class CartpoleRunner(OnPolicyRunner):
                             rnd_weight=None)
         elif self.gpu_global_rank == 0:
             self._write_metrics(it, stats, loss_dict, steps / iteration_time, collect_time, learn_time)
-            print(self._progress_line(it, stats, steps / iteration_time, solved, now), flush=True)
+            print(self._progress_line(it, stats, steps / iteration_time, evaluation, solved, now), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
             self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
         self.stop_reason = joint_stop(wanted, self.device, self.is_distributed)
+
+    def _evaluate_if_due(self, it: int, stats: EpisodeSummary) -> EpisodeSummary | None:
+        """The evaluation of the policy after iteration ``it``, where one is due (None otherwise, and always without an
+        ``eval_env``)."""
+        if self.eval_env is None:
+            return None
+        since = it - self._last_eval_iteration
+        limits = self.train_cfg.eval
+        if not (since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))):
+            return None
+        self._last_eval_iteration = it
+        try:
+            return evaluate(self.eval_env, self.policy(), self.train_cfg.env.seed)
+        finally:
+            self.alg.train_mode()
+
+    def _keep_if_best(self, it: int, evaluation: EpisodeSummary, solved: bool):
+        """Save ``model_best.pt`` where this evaluation beats the best so far (solved first, then the play metric)."""
+        score = (solved, getattr(evaluation, self.play_metric) or 0.0)
+        best = self.progress.best
+        if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):
+            return
+        self.progress.best = {"iteration": it, "solved": solved, self.play_metric: score[1]}
+        if self.run_dir is not None:
+            self.save(str(self.run_dir / BEST_CHECKPOINT))
 
     def _write_metrics(self, it: int, stats: EpisodeSummary, loss_dict: dict, steps_per_s: float,
                        collect_time: float, learn_time: float):
@@ -203,7 +248,8 @@ class CartpoleRunner(OnPolicyRunner):
         for tag, value in scalars.items():
             writer.add_scalar(tag, value, it)
 
-    def _progress_line(self, it: int, stats: EpisodeSummary, steps_per_s: float, solved: bool, now: float) -> str:
+    def _progress_line(self, it: int, stats: EpisodeSummary, steps_per_s: float, evaluation: EpisodeSummary | None,
+                       solved: bool, now: float) -> str:
         done = it + 1 - self._first_iteration
         eta_s = (now - self._start) / done * (self._end_iteration - it - 1)
         limit = self.env.max_episode_length
@@ -217,8 +263,12 @@ class CartpoleRunner(OnPolicyRunner):
         else:
             episodes = "no episode finished this iteration".ljust(60)
         width = len(str(self._end_iteration))
-        return (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
-                f" | ETA {format_duration(eta_s)}{' | SOLVED' if solved else ''}")
+        line = (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
+                f" | ETA {format_duration(eta_s)}")
+        if evaluation is not None:
+            line += (f" | eval {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
+                     f"{': SOLVED' if solved else ''}")
+        return line
 
     def save(self, path: str, infos: dict | None = None) -> None:
         """Write the models, optimizer, iteration and progress to ``path`` atomically."""

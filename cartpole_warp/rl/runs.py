@@ -32,6 +32,8 @@ EXPORT_DIR = "exported"
 PLAY_DIR = "play"
 TRAINER_DIR = "rsl_rl"
 """Folder under ``log_dir`` that holds the experiments (Isaac Lab's layout: logs/rsl_rl/<experiment>)."""
+BEST_CHECKPOINT = "model_best.pt"
+"""The checkpoint whose evaluation was the best of the run (play.py's default)."""
 _CHECKPOINT = re.compile(r"^model_(\d+)\.pt$")
 
 
@@ -68,6 +70,12 @@ def latest_checkpoint(run_dir: Path) -> Path:
     if not checkpoints:
         raise RunError(f"no checkpoint (model_<iteration>.pt) in {run_dir}")
     return checkpoints[-1]
+
+
+def play_checkpoint(run_dir: Path) -> Path:
+    """The checkpoint play.py loads from a run: its best (``model_best.pt``) where it has one, else its latest."""
+    best = Path(run_dir) / BEST_CHECKPOINT
+    return best if best.is_file() else latest_checkpoint(run_dir)
 
 
 def latest_run(log_dir: str | Path, experiment: str) -> Path:
@@ -115,9 +123,13 @@ class Progress:
     env_steps: int = 0
     train_time_s: float = 0.0
     solved_at: dict | None = None
-    """``{"iterations", "env_steps", "train_time_s"}`` when first solved."""
+    """``{"iterations", "env_steps", "train_time_s", <play metric>}`` of the first evaluation that met the task's
+    rule."""
+    best: dict | None = None
+    """``{"iteration", "solved", <play metric>}`` of the best evaluation so far (its policy: ``model_best.pt``)."""
     history: list[dict] = field(default_factory=list)
-    """One entry per iteration: episode means, env steps, time, solved."""
+    """One entry per iteration: the training episodes' means, env steps, time, solved, and the evaluation's means
+    ('evaluation') where one ran."""
 
 
 @dataclass
@@ -135,7 +147,11 @@ class RunSummary:
     learning_ms: float | None
     """Median over the iterations of one iteration's PPO update, measured on the device."""
     final: dict
-    """Episode means of the last iteration in which episodes finished."""
+    """Episode means of the last iteration in which training episodes finished."""
+    evaluation: dict | None
+    """The last evaluation's episode means (the deterministic policy; what decides 'solved') and its iteration."""
+    best: dict | None
+    """The best evaluation (``Progress.best``): the policy of ``model_best.pt``."""
     max_episode_length: int | None
     env_dt_s: float
     solved: bool

@@ -53,15 +53,27 @@ class Training:
         self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
         """Where the run's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); summary.json keeps
         them."""
+        self.eval_env = None
+        """The evaluation's envs (the process that writes the run evaluates: ``CartpoleRunner``)."""
+        if ranks.writes:
+            with timed(self.timing_s, "eval_env"):
+                self.eval_env = self.task.env_class(dataclasses.replace(env_cfg, num_envs=cfg.eval.num_envs,
+                                                                        seed=cfg.env.seed))
         with timed(self.timing_s, "networks"):
             self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
-                                         self.run_dir if ranks.writes else None)
+                                         self.run_dir if ranks.writes else None, self.eval_env)
             if resume_from is not None:
                 self.runner.load(str(resume_from))
             if ranks.writes:
                 save_config(self.run_dir, cfg)
         self.setup_time_s = time.perf_counter() - start
         self._interrupts = 0
+
+    @property
+    def solved_definition(self) -> str:
+        """The task's solved rule and what it judges, in words."""
+        return (f"{self.task.solved.describe()}, over the deterministic policy's whole episodes in "
+                f"{self.cfg.eval.num_envs} evaluation envs (play.py --headless's)")
 
     @property
     def max_episode_length(self) -> int:
@@ -96,6 +108,7 @@ class Training:
         with timed(self.timing_s, "curve"):
             self.plot()
         last = next((h for h in reversed(progress.history) if h["episodes"]), {})
+        evaluated = next((h for h in reversed(progress.history) if "evaluation" in h), None)
         has_limit = self.cfg.env.task.episode_length_s is not None
         summary = RunSummary(
             status=self.runner.stop_reason or "completed",
@@ -109,11 +122,13 @@ class Training:
             final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
                                             "mean_reward_per_step", "time_limit_fraction", "full_episodes",
                                             "full_reward_per_step")},
+            evaluation=({"iteration": evaluated["iteration"], **evaluated["evaluation"]} if evaluated else None),
+            best=progress.best,
             max_episode_length=self.max_episode_length if has_limit else None,
             env_dt_s=self.cfg.env.sim.env_dt,
             solved=progress.solved_at is not None,
             solved_at=progress.solved_at,
-            solved_definition=self.task.solved.describe(self.max_episode_length),
+            solved_definition=self.solved_definition,
             task=self.cfg.task,
             num_envs=self.cfg.env.num_envs * self.ranks.world_size,
             processes=self.ranks.world_size,
@@ -130,6 +145,4 @@ class Training:
         start-up)."""
         from .curve import plot_learning_curve
 
-        has_limit = self.cfg.env.task.episode_length_s is not None
-        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.cfg.env.sim.env_dt,
-                                   self.max_episode_length if has_limit else None, self.task.solved)
+        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task.solved)

@@ -27,22 +27,24 @@ DEFAULT_TASK = "cartpole-balance"
 
 @dataclass(frozen=True)
 class SolvedRule:
-    """When a task counts as solved, over the episodes that finished in one training iteration (or in a play)."""
+    """When a task counts as solved, over a set of finished episodes: those of the deterministic evaluation that
+    decides 'solved' in training (play.py's episodes), or a training iteration's (the hint that triggers one)."""
 
     min_reward_per_step: float | None = None
     """Mean reward per step (episode return / episode length) at least this (None: any) ..."""
-    min_length_fraction: float = 0.0
-    """... and a mean episode length at least this fraction of the time limit ..."""
+    min_time_limit_fraction: float = 0.0
+    """... and at least this fraction of the episodes reached the time limit instead of failing ..."""
     full_episodes_only: bool = False
-    """... where True: the means over the episodes that ran the whole time limit (at least one must have)."""
+    """... where True: the mean reward per step over the episodes that ran the whole time limit (at least one must
+    have)."""
 
-    def __call__(self, summary: Any, max_episode_length: int) -> bool:
+    def __call__(self, summary: Any) -> bool:
         """Whether ``summary`` (an ``evaluation.EpisodeSummary``) meets the rule."""
         per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
-        if per_step is None or summary.mean_length is None:
+        if per_step is None or summary.time_limit_fraction is None:
             return False
         return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
-                and summary.mean_length >= self.min_length_fraction * max_episode_length)
+                and summary.time_limit_fraction >= self.min_time_limit_fraction)
 
     def episode_success(self, returns: Any, lengths: Any, reached_limit: Any) -> Any:
         """Per episode (tensors): it reached the time limit and, for a rule over full-length episodes, its reward per
@@ -51,16 +53,15 @@ class SolvedRule:
             return reached_limit
         return reached_limit & (returns / lengths.clamp(min=1) >= self.min_reward_per_step)
 
-    def describe(self, max_episode_length: int) -> str:
+    def describe(self) -> str:
         """The rule in words."""
-        episodes = "full-length episodes" if self.full_episodes_only else "finished episodes"
         conditions = []
         if self.min_reward_per_step is not None:
-            conditions.append(f"mean reward per step >= {self.min_reward_per_step:g}")
-        if self.min_length_fraction:
-            conditions.append(f"mean episode length >= {self.min_length_fraction:.0%} of the {max_episode_length}-step "
-                              "time limit")
-        return f"{' and '.join(conditions) or 'any'} over one iteration's {episodes}"
+            over = " over full-length episodes" if self.full_episodes_only else ""
+            conditions.append(f"mean reward per step{over} >= {self.min_reward_per_step:g}")
+        if self.min_time_limit_fraction:
+            conditions.append(f">= {self.min_time_limit_fraction:.0%} of the episodes reach the time limit")
+        return " and ".join(conditions) or "any"
 
 
 @dataclass(frozen=True)

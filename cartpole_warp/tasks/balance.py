@@ -115,7 +115,7 @@ TASK = register(Task(
     name="cartpole-balance",
     env_class=CartpoleBalanceEnv,
     summary="keep the pole up (the Isaac Sim tutorial's task, 400 N cart, 10 s episodes)",
-    solved=SolvedRule(min_reward_per_step=0.9, min_length_fraction=0.95),
+    solved=SolvedRule(min_reward_per_step=0.9, min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
     gym_ids={"cartpole_warp/Cartpole-v0": None, "cartpole_warp/CartpoleTutorial-v0": "tutorial"},
 ))

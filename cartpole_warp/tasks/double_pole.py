@@ -154,7 +154,7 @@ TASK = register(Task(
     name="cart-double-pole-balance",
     env_class=CartDoublePoleEnv,
     summary="keep two poles in a chain upright on a cart (Newton's cart + double pendulum, 40 N cart, 10 s episodes)",
-    solved=SolvedRule(min_length_fraction=0.95),
+    solved=SolvedRule(min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
     defaults={"agent": {"num_steps_per_env": 16, "max_iterations": 300, "actor": {"obs_normalization": True},
                         "critic": {"obs_normalization": True}}},

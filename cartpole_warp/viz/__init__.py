@@ -1,2 +1,13 @@
 """Pictures of the env: GIF side views (``frames``), recordings of a rollout as GIF and time-sampled USD
 (``record``, Newton's ``ViewerUSD``) and Newton's interactive ``ViewerGL`` (``viewer``)."""
+
+from ..runtime import compile_without_adjoints
+
+NEWTON_VIEWER_MODULES = ("newton._src.viewer.kernels", "newton._src.geometry.raycast", "newton._src.sim.articulation")
+"""The Warp modules that Newton's viewers load (Newton 1.8): compiled here without adjoints (``prepare_viewers``)."""
+
+
+def prepare_viewers() -> None:
+    """Before a Newton viewer is made: its modules compile without adjoint code (a first recording on a 2-core CPU
+    took ~35 s with them)."""
+    compile_without_adjoints(*NEWTON_VIEWER_MODULES)

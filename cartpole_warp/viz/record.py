@@ -17,6 +17,7 @@ from newton.viewer import ViewerUSD
 
 from ..files import atomic_write
 from ..scene import Scene
+from . import prepare_viewers
 from .frames import Geometry, SideView, write_gif
 
 VIDEO_EXTRA = "pip install 'cartpole_warp[video]'"
@@ -53,6 +54,7 @@ class Recorder:
         """Time codes per second of the USD stage: one time code per env step."""
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self._usd_tmp = self.out_dir / ".cartpole.usda.tmp.usda"
+        prepare_viewers()
         self.usd = ViewerUSD(str(self._usd_tmp), fps=self.fps, num_frames=None)
         self.usd.set_model(scene.model)
         self.usd.set_visible_worlds([0])

@@ -15,6 +15,7 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
+from . import prepare_viewers
 from .frames import env_bounds
 
 ROWS = 4
@@ -47,6 +48,7 @@ def open_viewer(env: BatchedEnv):
     from newton.viewer import ViewerGL
 
     try:
+        prepare_viewers()
         viewer = ViewerGL(width=1280, height=720)
     except Exception as err:  # GL context creation fails in many backend-specific ways
         raise ViewerUnavailable(f"cannot open Newton's viewer ({type(err).__name__}: {err}); "

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import http.server
+import io
 import math
 import socket
 import sys
@@ -23,6 +24,7 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
+from . import prepare_viewers
 from .frames import env_bounds
 from .viewer import ViewerUnavailable
 
@@ -50,6 +52,7 @@ class WebViewer:
         from newton.viewer import ViewerViser
 
         self.env = env
+        prepare_viewers()
         self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False)
         self.url = self.viewer.url
         model = env.scene.model
@@ -161,7 +164,9 @@ class Recording:
         from newton.viewer import ViewerViser
 
         self.scene, self.env_dt = scene, env_dt
-        self.viewer = ViewerViser(host="127.0.0.1", port=free_port(), verbose=False, record_to_viser=str(path))
+        prepare_viewers()
+        with contextlib.redirect_stdout(io.StringIO()):  # viser prints its address whatever verbose says
+            self.viewer = ViewerViser(host="127.0.0.1", port=free_port(), verbose=False, record_to_viser=str(path))
         self.viewer.set_model(scene.model)
         self.viewer.set_visible_worlds([0])
 
@@ -172,7 +177,8 @@ class Recording:
 
     def close(self):
         self.viewer.save_recording()
-        self.viewer.close()
+        with contextlib.redirect_stdout(io.StringIO()):  # and that it stopped
+            self.viewer.close()
 
 
 def free_port() -> int:

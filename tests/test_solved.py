@@ -1,0 +1,109 @@
+"""The stop rule judges the deterministic policy over whole episodes, as play.py does: a policy that meets the task's
+rule only in its (noisy) training episodes is not solved, one whose mean action balances is solved whatever its
+training episodes show, the best evaluation is kept as model_best.pt and play.py loads it by default."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from cartpole_warp import tasks
+from cartpole_warp.evaluation import EpisodeSummary, evaluate
+from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.runs import BEST_CHECKPOINT, list_checkpoints, play_checkpoint
+from cartpole_warp.rl.training import Training
+
+BALANCING_GAINS = [0.05, 0.1, -2.0, -0.3]
+"""A linear state feedback (action per cart_pos, cart_vel, pole_angle, pole_vel) that keeps the balance task's pole
+up for the whole 10 s from every start (found by a grid search over the env itself)."""
+PASSING = EpisodeSummary(100, 590.0, 595.0, 0.99, 1.0, 100, 0.99)
+FAILING = EpisodeSummary(100, 10.0, 20.0, 0.5, 0.0)
+
+
+def make_training(tmp_path, **eval_settings) -> Training:
+    """A balance run of 64 training envs and 32 evaluation envs that barely learns (fixed learning rate of 1e-12):
+    its policy stays the one the test writes into the actor."""
+    cfg = train_config("cartpole-balance")
+    cfg.env.num_envs, cfg.agent.logger, cfg.log_dir = 64, "none", str(tmp_path)
+    cfg.agent.algorithm.schedule, cfg.agent.algorithm.learning_rate = "fixed", 1e-12
+    for name, value in {"num_envs": 32, **eval_settings}.items():
+        setattr(cfg.eval, name, value)
+    return Training(cfg, tmp_path / "run")
+
+
+def set_policy_mean(training: Training, gains: list[float], std: float):
+    """The actor's mean action becomes ``gains @ obs`` exactly (ELU is the identity on the positive side, so the
+    hidden layers carry ``gains @ obs + 10`` through unit 0), its Gaussian noise ``std``."""
+    actor = training.runner.alg.get_policy()
+    with torch.no_grad():
+        for param in actor.parameters():
+            param.zero_()
+        first, second, out = actor.mlp[0], actor.mlp[2], actor.mlp[4]
+        first.weight[0] = torch.tensor(gains)
+        first.bias[0] = 10.0
+        second.weight[0, 0] = 1.0
+        out.weight[0, 0] = 1.0
+        out.bias[0] = -10.0
+        actor.distribution.std_param.fill_(std)
+
+
+def training_episodes(training: Training, summary: EpisodeSummary):
+    """The runner sees ``summary`` as every iteration's training episodes (what a noisy policy showed)."""
+    training.runner.episodes.pop = lambda all_processes=False: summary
+
+
+def test_training_episodes_that_meet_the_rule_do_not_make_a_failing_policy_solved(tmp_path):
+    training = make_training(tmp_path, min_interval=1, max_interval=100)
+    set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    training_episodes(training, PASSING)
+    training.cfg.stop_when_solved = training.runner.train_cfg.stop_when_solved = True
+    training.runner.learn(3)
+    history = training.runner.progress.history
+    assert [h["solved"] for h in history] == [False] * 3, "a push of 0 lets every pole fall"
+    assert all(h["evaluation"]["time_limit_fraction"] == 0.0 for h in history), "each candidate was evaluated"
+    assert training.runner.progress.solved_at is None and training.runner.stop_reason is None
+
+
+def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_whatever_its_noise_shows(tmp_path):
+    training = make_training(tmp_path, min_interval=1, max_interval=3)
+    set_policy_mean(training, BALANCING_GAINS, std=5.0)
+    training_episodes(training, FAILING)
+    training.runner.train_cfg.stop_when_solved = True
+    training.runner.learn(10)
+    history = training.runner.progress.history
+    assert ["evaluation" in h for h in history] == [False, False, True], "no candidate: the third iteration looks"
+    assert history[-1]["evaluation"]["time_limit_fraction"] == 1.0 and history[-1]["solved"]
+    assert training.runner.stop_reason == "solved"
+    assert training.runner.progress.solved_at["iterations"] == 3
+
+
+def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path):
+    training = make_training(tmp_path, min_interval=1, max_interval=1)
+    set_policy_mean(training, BALANCING_GAINS, std=1.0)
+    training_episodes(training, FAILING)
+    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    training.runner.learn(2)
+    history, run = training.runner.progress.history, training.run_dir
+    assert [h["evaluation"]["time_limit_fraction"] for h in history] == [1.0, 0.0]
+    assert training.runner.progress.best == {"iteration": 0, "solved": True, "time_limit_fraction": 1.0}
+    assert play_checkpoint(run) == run / BEST_CHECKPOINT and list_checkpoints(run)[-1].name == "model_1.pt"
+    best = torch.load(run / BEST_CHECKPOINT, weights_only=False)
+    assert best["iter"] == 0 and torch.equal(best["actor_state_dict"]["mlp.0.weight"][0], torch.tensor(BALANCING_GAINS))
+
+    # what play.py plays: the run's seed, a fresh env of eval.num_envs envs, the best checkpoint's policy
+    from cartpole_warp.rl.runner import CartpoleRunner
+    from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+    cfg = training.cfg
+    env = tasks.get(cfg.task).env_class(dataclasses.replace(cfg.env, num_envs=cfg.eval.num_envs))
+    player = CartpoleRunner(RslRlVecEnv(env), cfg, None)
+    player.load(str(play_checkpoint(run)), load_cfg={"actor": True})
+    played = evaluate(env, player.policy(), cfg.env.seed)
+    evaluated = history[0]["evaluation"]
+    assert (played.episodes, played.mean_return, played.time_limit_fraction) == (
+        evaluated["episodes"], evaluated["mean_return"], evaluated["time_limit_fraction"]), "the same episodes"
+
+
+@pytest.mark.parametrize("name", tasks.names())
+def test_every_tasks_rule_refuses_a_summary_without_episodes(name):
+    assert not tasks.get(name).solved(EpisodeSummary(0, None, None, None, None))
