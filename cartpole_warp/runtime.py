@@ -55,11 +55,10 @@ def init_warp() -> None:
 
 @contextmanager
 def warp_output(verbose: bool) -> Iterator[None]:
-    """Inside: Warp's info lines (its greeting, a line per module loaded or compiled) off, unless ``verbose``; Warp's
-    own setting is restored after (the library changes no global setting)."""
+    """Inside: Warp's info lines (its greeting, a line per module loaded or compiled) off, or on where ``verbose``;
+    Warp's own setting is restored after (the library changes no global setting)."""
     level = wp.config.log_level
-    if not verbose:
-        wp.config.log_level = max(level, wp.LOG_WARNING)
+    wp.config.log_level = min(level, wp.LOG_INFO) if verbose else max(level, wp.LOG_WARNING)
     try:
         yield
     finally:

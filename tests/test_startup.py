@@ -1,0 +1,86 @@
+"""Start-up: the library prints nothing and changes no global setting of Warp, warmup fills an empty kernel cache so
+that the next build compiles nothing, Newton's modules compile without adjoints unless sim.gradients asks."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def python(code: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``code`` in a fresh interpreter (the repository as its working folder), output captured."""
+    return subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, **(env or {})})
+
+
+def test_library_use_prints_nothing_and_restores_warps_settings():
+    """Every task through tasks.make and every gymnasium id through gym.make, built and stepped in a fresh process
+    (Warp's greeting and module lines would appear unless the library silenced them)."""
+    code = """
+import gymnasium as gym, torch, warp as wp
+import cartpole_warp
+level, backward = wp.config.log_level, wp.config.enable_backward
+for name in cartpole_warp.tasks.names():
+    env = cartpole_warp.tasks.make(name, num_envs=4, device="cpu")
+    env.step(torch.zeros(4, env.num_actions))
+    env.set_physical_params(actuator_scale=torch.full((4,), 0.5))
+    env.close()
+for gym_id in [i for i in gym.registry if i.startswith("cartpole_warp/")]:
+    env = gym.make(gym_id)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    env.close()
+assert (wp.config.log_level, wp.config.enable_backward) == (level, backward), "a global Warp setting changed"
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "" and result.stderr == "", result.stdout + result.stderr
+
+
+def test_verbose_lets_warps_lines_through():
+    result = python("import cartpole_warp; cartpole_warp.make_env(num_envs=4, device='cpu', verbose=True)")
+    assert result.returncode == 0, result.stderr
+    assert "Module cartpole_warp.tasks.balance" in result.stdout and "load on device 'cpu'" in result.stdout
+
+
+@pytest.mark.slow
+def test_warmup_fills_an_empty_kernel_cache_so_that_training_compiles_nothing(tmp_path):
+    cache = tmp_path / "warp-cache"
+    with_cache = {**os.environ, "WARP_CACHE_PATH": str(cache)}
+    result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance"], cwd=REPO,
+                            capture_output=True, text=True, timeout=900, env=with_cache)
+    assert result.returncode == 0, result.stderr
+    assert "compiling Warp kernels for CartpoleBalanceEnv on cpu" in result.stdout
+    assert "cartpole-balance: ready on cpu in" in result.stdout
+    filled = sorted(p.name for p in (cache / os.listdir(cache)[0]).iterdir())
+    assert any("featherstone" in name for name in filled) and any("viewer" in name for name in filled)
+
+    train = ["train.py", "--num-envs", "64", "--max-iterations", "1", "--logger", "none", "--env.verbose"]
+    result = subprocess.run([sys.executable, *train, "--log-dir", tmp_path / "logs"], cwd=REPO, capture_output=True,
+                            text=True, timeout=600, env=with_cache)
+    assert result.returncode == 0, result.stdout + result.stderr
+    loads = [line for line in result.stdout.splitlines() if " load on device " in line]
+    assert loads and all(line.endswith("(cached)") for line in loads), "\n".join(loads)
+    assert "compiling Warp kernels" not in result.stdout
+    assert sorted(p.name for p in (cache / os.listdir(cache)[0]).iterdir()) == filled, "nothing new in the cache"
+
+
+@pytest.mark.parametrize("gradients", [False, True])
+def test_newtons_modules_compile_adjoints_only_where_asked(gradients):
+    """The Warp option that decides whether adjoint code is compiled, on the modules an env loads; Warp's global
+    default stays (True)."""
+    code = f"""
+import warp as wp
+import cartpole_warp
+from cartpole_warp.scene import model_modules, solver_modules
+env = cartpole_warp.make_env(num_envs=4, device="cpu", sim={{"gradients": {gradients}}})
+print(sorted({{m.options["enable_backward"] for m in model_modules() + solver_modules("featherstone")}}),
+      wp.config.enable_backward)
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == [f"[{gradients}]", "True"]
