@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import torch
 
 from .env import BatchedEnv
+from .runtime import TorchGraph
 
 NO_LIMIT_STEPS = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""
@@ -105,30 +106,69 @@ class FirstEpisodes:
         return stats.summary()
 
 
-def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,
-                   reset: bool = True, seed: int | None = None) -> FirstEpisodes:
-    """Reset ``env`` (re-seeded with ``seed`` where given: the same starts each time; unless ``reset`` is False: the
-    episodes it has just begun) and run ``policy`` for ``steps`` env steps without gradients; ``on_step(k)`` is called
-    after the reset (k = 0) and after each step k (to record pictures). An episode still running after ``steps``
-    counts as having reached the time limit."""
-    obs = env.reset(seed)[0] if reset else env.get_observations()
-    if on_step is not None:
-        on_step(0)
-    finished = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
-    reached = torch.ones_like(finished)
-    lengths = torch.full((env.num_envs,), steps, dtype=torch.int64, device=env.device)
-    returns = torch.zeros(env.num_envs, dtype=torch.float32, device=env.device)
-    with torch.inference_mode():
+class FirstEpisodesRun:
+    """Runs of each env's first episode under ``policy`` (``first_episodes``) on persistent tensors. On CUDA (where
+    ``capture``) one step of it, the policy, the env step and the episode bookkeeping, is captured as a CUDA graph when
+    the run is made (two throw-away steps: every run then starts from a reset) and replayed: a run costs one launch
+    per env step, and training's evaluations and play.py compute with the same graph."""
+
+    def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True):
+        self.env, self.policy = env, policy
+        n, device = env.num_envs, env.device
+        self._obs = env.get_observations()
+        self._finished = torch.zeros(n, dtype=torch.bool, device=device)
+        self._reached = torch.ones_like(self._finished)
+        self._lengths = torch.zeros(n, dtype=torch.int64, device=device)
+        self._returns = torch.zeros(n, dtype=torch.float32, device=device)
+        self._steps = torch.zeros((), dtype=torch.int64, device=device)
+        self._graph = TorchGraph(device) if capture and torch.device(device).type == "cuda" else None
+        if self._graph is not None:
+            self._advance()  # op by op (allocations, cuBLAS on the graph's stream)
+            self._advance()  # captured
+
+    def _step(self):
+        obs, reward, terminated, truncated, _ = self.env.step(self.policy(self._obs).to(torch.float32))
+        self._steps += 1
+        self._returns += torch.where(self._finished, 0.0, reward)
+        ended = (terminated | truncated) & ~self._finished
+        self._lengths.copy_(torch.where(ended, self._steps, self._lengths))
+        self._reached.copy_(torch.where(ended, truncated, self._reached))
+        self._finished |= ended
+        self._obs.copy_(obs)
+
+    def _advance(self):
+        with torch.inference_mode():
+            if self._graph is None:
+                self._step()
+            else:
+                self._graph(self._step)
+
+    def __call__(self, steps: int, on_step: Callable[[int], None] | None = None, reset: bool = True,
+                 seed: int | None = None) -> FirstEpisodes:
+        """Reset the env (re-seeded with ``seed`` where given: the same starts each time; unless ``reset`` is False:
+        the episodes it has just begun) and run the policy for ``steps`` env steps without gradients; ``on_step(k)``
+        is called after the reset (k = 0) and after each step k (to record pictures). An episode still running after
+        ``steps`` counts as having reached the time limit."""
+        self._obs.copy_(self.env.reset(seed)[0] if reset else self.env.get_observations())
+        self._finished.zero_()
+        self._reached.fill_(True)
+        self._lengths.fill_(steps)
+        self._returns.zero_()
+        self._steps.zero_()
+        if on_step is not None:
+            on_step(0)
         for step in range(1, steps + 1):
-            obs, reward, terminated, truncated, _ = env.step(policy(obs).to(torch.float32))
-            returns += torch.where(finished, 0.0, reward)
-            ended = (terminated | truncated) & ~finished
-            lengths = torch.where(ended, step, lengths)
-            reached = torch.where(ended, truncated, reached)
-            finished |= ended
+            self._advance()
             if on_step is not None:
                 on_step(step)
-    return FirstEpisodes(returns, lengths, reached)
+        return FirstEpisodes(self._returns.clone(), self._lengths.clone(), self._reached.clone())
+
+
+def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,
+                   reset: bool = True, seed: int | None = None) -> FirstEpisodes:
+    """``FirstEpisodesRun(env, policy)(steps, on_step, reset, seed)``: one run (captured on CUDA unless ``reset`` is
+    False, since capturing takes steps)."""
+    return FirstEpisodesRun(env, policy, capture=reset)(steps, on_step, reset, seed)
 
 
 def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,
@@ -143,7 +183,8 @@ def whole_episode_steps(env: BatchedEnv) -> int:
     return env.max_episode_length if env.cfg.task.episode_length_s is not None else NO_LIMIT_STEPS
 
 
-def evaluate(env: BatchedEnv, policy: Policy, seed: int) -> EpisodeSummary:
+def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:
     """Each env's first episode from a reset seeded with ``seed`` to its end (``whole_episode_steps``): what
     ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved')."""
-    return rollout(env, policy, whole_episode_steps(env), seed=seed)
+    steps = whole_episode_steps(run.env)
+    return run(steps, seed=seed).summary(min(steps, run.env.max_episode_length))

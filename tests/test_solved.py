@@ -6,9 +6,10 @@ import dataclasses
 
 import pytest
 import torch
+from conftest import DEVICE
 
 from cartpole_warp import tasks
-from cartpole_warp.evaluation import EpisodeSummary, evaluate
+from cartpole_warp.evaluation import EpisodeSummary, FirstEpisodesRun, evaluate
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runs import BEST_CHECKPOINT, list_checkpoints, play_checkpoint
 from cartpole_warp.rl.training import Training
@@ -21,10 +22,10 @@ FAILING = EpisodeSummary(100, 10.0, 20.0, 0.5, 0.0)
 
 
 def make_training(tmp_path, **eval_settings) -> Training:
-    """A balance run of 64 training envs and 32 evaluation envs that barely learns (fixed learning rate of 1e-12):
-    its policy stays the one the test writes into the actor."""
+    """A balance run of 64 training envs and 32 evaluation envs on the test device that barely learns (fixed learning
+    rate of 1e-12): its policy stays the one the test writes into the actor."""
     cfg = train_config("cartpole-balance")
-    cfg.env.num_envs, cfg.agent.logger, cfg.log_dir = 64, "none", str(tmp_path)
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 64, DEVICE, "none", str(tmp_path)
     cfg.agent.algorithm.schedule, cfg.agent.algorithm.learning_rate = "fixed", 1e-12
     for name, value in {"num_envs": 32, **eval_settings}.items():
         setattr(cfg.eval, name, value)
@@ -98,7 +99,7 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
     env = tasks.get(cfg.task).env_class(dataclasses.replace(cfg.env, num_envs=cfg.eval.num_envs))
     player = CartpoleRunner(RslRlVecEnv(env), cfg, None)
     player.load(str(play_checkpoint(run)), load_cfg={"actor": True})
-    played = evaluate(env, player.policy(), cfg.env.seed)
+    played = evaluate(FirstEpisodesRun(env, player.policy()), cfg.env.seed)
     evaluated = history[0]["evaluation"]
     assert (played.episodes, played.mean_return, played.time_limit_fraction) == (
         evaluated["episodes"], evaluated["mean_return"], evaluated["time_limit_fraction"]), "the same episodes"

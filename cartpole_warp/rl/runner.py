@@ -27,7 +27,7 @@ from tensordict import TensorDict
 
 from .. import tasks
 from ..env import BatchedEnv
-from ..evaluation import EpisodeStats, EpisodeSummary, Policy, evaluate
+from ..evaluation import EpisodeStats, EpisodeSummary, FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
 from ..runtime import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
@@ -74,6 +74,7 @@ class CartpoleRunner(OnPolicyRunner):
         task = tasks.get(cfg.task)
         self.solved_rule, self.play_metric = task.solved, task.play_metric
         self.eval_env = eval_env
+        self._evaluation: FirstEpisodesRun | None = None
         self._last_eval_iteration = -1
         self.progress = Progress()
         self.episodes = EpisodeStats(env.device, env.max_episode_length)
@@ -214,8 +215,11 @@ class CartpoleRunner(OnPolicyRunner):
         if not (since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))):
             return None
         self._last_eval_iteration = it
+        if self._evaluation is None:
+            self._evaluation = FirstEpisodesRun(self.eval_env, self.policy())
+        self.alg.eval_mode()
         try:
-            return evaluate(self.eval_env, self.policy(), self.train_cfg.env.seed)
+            return evaluate(self._evaluation, self.train_cfg.env.seed)
         finally:
             self.alg.train_mode()
 

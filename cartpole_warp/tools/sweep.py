@@ -10,8 +10,10 @@ without the dashes, several in one quoted string; a list value is comma-separate
 
 It prints two markdown tables. Per seed, as each run ends: the iteration and training seconds at which it was
 solved, the milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s
-including PPO, and with ``--play`` the task's play metric (``Task.play_metric``: the fraction of episodes that reached
-the time limit for the balance task, the reward per step of full episodes for the swing-up) of play.py's final policy.
+including PPO, the task's play metric (``Task.play_metric``: the fraction of episodes that reached the time limit for
+the balance tasks, the reward per step of full episodes for the swing-up) in the evaluation that decided 'solved', and
+with ``--play`` the same metric of play.py's run of the run's best policy, next to it so that the two cannot disagree
+silently.
 Per variant, at the end: the same over the seeds (iterations and seconds as median and worst, play as the worst
 seed's). A failed run's output goes to stderr, and it counts as not solved.
 """
@@ -50,7 +52,7 @@ class SweepArgs:
     max_iterations: int | None = None
     """Iterations of every run (default: the variant's own, 150 for the default settings)."""
     play: bool = False
-    """Also run play.py --headless on each result (256 envs, one time limit)."""
+    """Also run play.py --headless on each result (its best policy; the run's eval.num_envs envs, one time limit)."""
     stop_when_solved: bool = False
     """End each run when solved (quicker to screen settings); by default runs go on to max_iterations, as
     train.py does, and play judges the final policy."""
@@ -67,8 +69,10 @@ class RunResult:
     env_steps_per_s: int | None
     collection_ms: float | None = None
     learning_ms: float | None = None
+    solved_value: float | None = None
+    """The task's play metric in the evaluation that decided 'solved'."""
     play_value: float | None = None
-    """The task's play metric of play.py's run of the final policy."""
+    """The task's play metric of play.py's run of the run's best policy (model_best.pt, else the last)."""
     error: str | None = None
     """The failed command's last output lines (the sweep goes on with the next run)."""
 
@@ -97,7 +101,7 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     solved = summary["solved_at"] or {}
     result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"],
-                       summary["collection_ms"], summary["learning_ms"])
+                       summary["collection_ms"], summary["learning_ms"], solved.get(tasks.get(args.task).play_metric))
     if args.play:
         played = subprocess.run([sys.executable, "-m", "cartpole_warp.play", "--headless", "--run",
                                  str(run_dir), "--device", args.device], capture_output=True, text=True)
@@ -111,8 +115,10 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
 
 def seed_table_header(task: str) -> str:
     """Markdown header of the per-seed table."""
+    metric = tasks.get(task).play_metric
     return ("| train.py flags | seed | solved at iteration | seconds to solved | ms per iteration: collection + "
-            f"learning | env-steps/s | play: {tasks.get(task).play_metric} |\n|---|---|---|---|---|---|---|")
+            f"learning | env-steps/s | evaluation at solved: {metric} | play: {metric} |\n"
+            "|---|---|---|---|---|---|---|---|")
 
 
 def _markdown_row(cells: list[str]) -> str:
@@ -131,13 +137,14 @@ def seed_row(result: RunResult) -> str:
     """Markdown row of one run."""
     cells = [_flags_cell(result.variant), str(result.seed)]
     if result.error:
-        cells += ["failed"] + ["-"] * 4
+        cells += ["failed"] + ["-"] * 5
     else:
         solved = result.solved_iterations is not None
         cells += [str(result.solved_iterations) if solved else "not solved",
                   f"{result.solved_time_s:.1f}" if solved else "-",
                   _ms_cell(result.collection_ms, result.learning_ms) if result.collection_ms is not None else "-",
                   f"{result.env_steps_per_s:,}" if result.env_steps_per_s else "-",
+                  f"{result.solved_value:.3f}" if result.solved_value is not None else "-",
                   f"{result.play_value:.3f}" if result.play_value is not None else "-"]
     return _markdown_row(cells)
 
