@@ -215,12 +215,18 @@ class CartpoleRunner(OnPolicyRunner):
         if not (since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))):
             return None
         self._last_eval_iteration = it
-        if self._evaluation is None:
-            self._evaluation = FirstEpisodesRun(self.eval_env, self.policy())
+        self.prepare_evaluation()
         self.alg.eval_mode()
         try:
             return evaluate(self._evaluation, self.train_cfg.env.seed)
         finally:
+            self.alg.train_mode()
+
+    def prepare_evaluation(self):
+        """Make the evaluation's run of the policy on ``eval_env`` (on a GPU: capture its CUDA graph) if not made yet;
+        ``Training`` calls it while setting up, so that the first evaluation costs no capture."""
+        if self.eval_env is not None and self._evaluation is None:
+            self._evaluation = FirstEpisodesRun(self.eval_env, self.policy())
             self.alg.train_mode()
 
     def _keep_if_best(self, it: int, evaluation: EpisodeSummary, solved: bool):

@@ -62,6 +62,8 @@ class Training:
         with timed(self.timing_s, "networks"):
             self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
                                          self.run_dir if ranks.writes else None, self.eval_env)
+        with timed(self.timing_s, "eval_env"):
+            self.runner.prepare_evaluation()
             if resume_from is not None:
                 self.runner.load(str(resume_from))
             if ranks.writes:
