@@ -99,6 +99,10 @@ class SimConfig:
     cpu_threads: NonNegativeInt = 0
     """On the CPU with featherstone, step this many shards of the envs in parallel threads (Warp runs each CPU
     kernel launch on one thread); 0: one per available core. Shards hold at least 512 envs; ignored on CUDA."""
+    divergence_limit: Positive = 1000.0
+    """A joint position or velocity (m or rad, m/s or rad/s) beyond this ends that env's episode as 'diverged_state'
+    with reward 0, like a non-finite one: far beyond what any task reaches, it keeps runaway physics (e.g. an extreme
+    randomized mass) out of the observations, the rewards and the policy's normaliser."""
     gradients: Flag = False
     """Compile the adjoint (gradient) code of Newton's modules that the env loads too, to differentiate through the
     physics with ``wp.Tape``; without it a first build compiles about 3x faster (the env never needs gradients)."""

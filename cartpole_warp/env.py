@@ -32,10 +32,11 @@ wp.set_module_options({"enable_backward": False})  # this module's kernels are n
 END_NONE = wp.constant(0)
 END_TIME_LIMIT = wp.constant(1)
 END_NONFINITE = wp.constant(2)
-FIRST_TASK_END = 3
+END_DIVERGED = wp.constant(3)
+FIRST_TASK_END = 4
 """A task's own end reasons (failures) are the codes FIRST_TASK_END, FIRST_TASK_END + 1, ... in its ``task_ends``."""
-COMMON_ENDS = ("running", "time_limit", "nonfinite_state")
-"""Names of the codes 0, 1, 2 of ``end_reason``, the same for every task."""
+COMMON_ENDS = ("running", "time_limit", "nonfinite_state", "diverged_state")
+"""Names of the codes 0-3 of ``end_reason``, the same for every task."""
 
 
 def kernel_params(config_class: type[TaskConfig]) -> type:
@@ -116,6 +117,13 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         return ok
 
     @wp.func
+    def all_within(q: Joints, qd: Joints, limit: float):
+        ok = True
+        for r in range(num_joints):
+            ok = ok and wp.abs(q[r]) <= limit and wp.abs(qd[r]) <= limit
+        return ok
+
+    @wp.func
     def noisy(o: Obs, noise_std: float, rng_state: wp.array(dtype=wp.uint32), env: int):
         """``o`` plus Gaussian noise of ``noise_std`` per element (none, and no draw, at 0)."""
         out = o
@@ -190,21 +198,24 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         actions[env] = a
 
     @kernel
-    def finish_step(p: Params, noise_std: float, dofs_per_env: int, role_dofs: wp.array(dtype=int),
-                    max_episode_length: int, actions: wp.array(dtype=Actions), rng_state: wp.array(dtype=wp.uint32),
+    def finish_step(p: Params, noise_std: float, divergence_limit: float, dofs_per_env: int,
+                    role_dofs: wp.array(dtype=int), max_episode_length: int, actions: wp.array(dtype=Actions),
+                    rng_state: wp.array(dtype=wp.uint32),
                     joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
                     last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
                     steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float),
                     reward: wp.array(dtype=float), terminated: wp.array(dtype=wp.bool),
                     truncated: wp.array(dtype=wp.bool), final_obs: wp.array(dtype=Obs),
                     ended_return: wp.array(dtype=float), ended_length: wp.array(dtype=wp.int32),
-                    end_reason: wp.array(dtype=wp.int32), nonfinite_state_count: wp.array(dtype=wp.int32)):
+                    end_reason: wp.array(dtype=wp.int32), nonfinite_state_count: wp.array(dtype=wp.int32),
+                    diverged_state_count: wp.array(dtype=wp.int32)):
         """After the physics: observe, reward, end reason, time limit; keep the final observation; reset ended envs.
 
-        A non-finite physics state ends the episode with reward 0 and is counted; its final observation is the last
-        finite one, and its end reason that state's (a task failure when it was already beyond the task's limits,
-        else 'nonfinite_state'). ``episode_length`` counts toward the time limit (rsl-rl may start it at random
-        values); ``steps_run`` counts the steps the episode really ran, which ``ended_length`` reports."""
+        A non-finite physics state, or one with a joint position or velocity beyond ``divergence_limit`` (runaway
+        physics), ends the episode with reward 0 and is counted; its final observation is the last sound one, and its
+        end reason that state's (a task failure when it was already beyond the task's limits, else
+        'nonfinite_state' or 'diverged_state'). ``episode_length`` counts toward the time limit (rsl-rl may start it
+        at random values); ``steps_run`` counts the steps the episode really ran, which ``ended_length`` reports."""
         env = wp.tid()
         base = env * dofs_per_env
         q, qd = read_joints(joint_q, joint_qd, base, role_dofs)
@@ -214,14 +225,20 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         o = obs[env]
         r = float(0.0)  # noqa: UP018 (a Warp variable that the branch below assigns, not a constant)
         reason = END_NONE
-        if all_finite(q, qd):
+        finite = all_finite(q, qd)
+        if finite and all_within(q, qd, divergence_limit):
             o = noisy(fns.observe(q, qd, p), noise_std, rng_state, env)
             r, reason = fns.evaluate(q, qd, a, p)
         else:
             unused, reason = fns.evaluate(last_q[env], last_qd[env], a, p)
-            if reason == END_NONE:
-                reason = END_NONFINITE
-            wp.atomic_add(nonfinite_state_count, 0, 1)
+            if finite:
+                wp.atomic_add(diverged_state_count, 0, 1)
+                if reason == END_NONE:
+                    reason = END_DIVERGED
+            else:
+                wp.atomic_add(nonfinite_state_count, 0, 1)
+                if reason == END_NONE:
+                    reason = END_NONFINITE
         if reason == END_NONE and length >= max_episode_length:
             reason = END_TIME_LIMIT
         ret = episode_return[env] + r
@@ -292,8 +309,9 @@ class BatchedEnv(abc.ABC):
 
     ``info`` keys (tensors on ``device``): ``final_obs`` (N, num_obs); ``episode_return`` (N,), ``episode_length``
     (N,) and ``end_reason`` (N,) int32 (codes named by ``end_reasons``), valid where terminated | truncated;
-    ``nonfinite_actions`` and ``nonfinite_states`` (scalars, totals since construction): non-finite actions are
-    applied as 0, and a non-finite physics state ends its episode (reward 0) with the last finite observation.
+    ``nonfinite_actions``, ``nonfinite_states`` and ``diverged_states`` (scalars, totals since construction):
+    non-finite actions are applied as 0, and a non-finite physics state, or one beyond ``sim.divergence_limit``, ends
+    its episode (reward 0) with the last sound observation.
 
     On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
     (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
@@ -400,6 +418,7 @@ class BatchedEnv(abc.ABC):
         self._end_reason = buf(wp.int32)
         self._nonfinite_actions = buf(wp.int32, len(self.shards))
         self._nonfinite_states = buf(wp.int32, len(self.shards))
+        self._diverged_states = buf(wp.int32, len(self.shards))
         self._states_in = buf(k.State)
         self._mask_in = buf(wp.bool)
         self._all_envs = wp.full(n, True, dtype=wp.bool, device=dev)
@@ -421,6 +440,7 @@ class BatchedEnv(abc.ABC):
         self._counter_views = {
             "nonfinite_actions": wp.to_torch(self._nonfinite_actions),
             "nonfinite_states": wp.to_torch(self._nonfinite_states),
+            "diverged_states": wp.to_torch(self._diverged_states),
         }
 
     @property
@@ -469,13 +489,13 @@ class BatchedEnv(abc.ABC):
         self._simulate(shard)
         wp.launch(
             k.finish_step, dim=shard.num_envs,
-            inputs=[self.params, self._noise_std, s.dofs_per_env, self._role_dofs, self.max_episode_length,
-                    rows(self._actions)],
+            inputs=[self.params, self._noise_std, self.cfg.sim.divergence_limit, s.dofs_per_env, self._role_dofs,
+                    self.max_episode_length, rows(self._actions)],
             outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._last_q),
                      rows(self._last_qd), rows(self._obs), rows(self._episode_length), rows(self._steps_run),
                      rows(self._episode_return), rows(self._reward), rows(self._terminated), rows(self._truncated),
                      rows(self._final_obs), rows(self._ended_return), rows(self._ended_length), rows(self._end_reason),
-                     shard.slot(self._nonfinite_states)],
+                     shard.slot(self._nonfinite_states), shard.slot(self._diverged_states)],
             device=self.device,
         )
         if self.physics.drawn and self.cfg.randomization.at == "reset":

@@ -51,8 +51,8 @@ def episodes_ended(trajectory) -> int:
 @pytest.mark.parametrize("task", TASKS)
 def test_every_task_names_its_end_reasons(task, make):
     env = make(2, task_name=task)
-    assert env.end_reasons[:3] == COMMON_ENDS == ("running", "time_limit", "nonfinite_state")
-    assert env.end_reasons[3:] == type(env).task_ends
+    assert env.end_reasons[:4] == COMMON_ENDS == ("running", "time_limit", "nonfinite_state", "diverged_state")
+    assert env.end_reasons[4:] == type(env).task_ends
     assert isinstance(env, cartpole_warp.BatchedEnv) and isinstance(env, cartpole_warp.tasks.get(task).env_class)
 
 
@@ -275,6 +275,30 @@ def test_nonfinite_physics_state_is_reset_and_counted(task, make, device):
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_runaway_physics_ends_as_diverged_with_finite_rewards_and_bounded_observations(task, make, device):
+    """A finite state far beyond anything the task reaches (velocities of 1e4 and 1e6 per joint, positions left
+    sound) ends its episode as 'diverged_state' after one step: reward 0, a finite return, the last sound observation
+    kept, counted; the other envs run on. Without the guard the double pole's reward at 1e6 rad/s is about -5e8
+    (and -inf from about 2e19 on), and the observations carry the runaway values into the policy's normaliser."""
+    env = make(4, task_name=task)
+    states = safe_states(env, 4)
+    velocities = states[:, 1::2]
+    velocities[1] = 1e6
+    velocities[2] = 1e4
+    start = env.set_state(states)
+    obs, reward, terminated, truncated, info = env.step(zero_actions(env))
+    reasons = [env.end_reasons[code] for code in info["end_reason"].tolist()]
+    assert reasons[1:3] == ["diverged_state", "diverged_state"] and reasons[0] == reasons[3] == "running", reasons
+    assert terminated.tolist() == [False, True, True, False] and not truncated.any()
+    assert reward[1:3].tolist() == [0.0, 0.0] and torch.isfinite(reward).all()
+    assert torch.isfinite(info["episode_return"]).all() and info["episode_return"][1:3].tolist() == [0.0, 0.0]
+    assert torch.equal(info["final_obs"][1:3], start[1:3]), "the last sound observation: the start's"
+    assert int(info["diverged_states"]) == 2 and int(info["nonfinite_states"]) == 0
+    limit = env.cfg.sim.divergence_limit
+    assert torch.isfinite(obs).all() and (obs[1:3].abs() <= limit).all(), "envs 1 and 2 start over"
+
+
+@pytest.mark.parametrize("task", TASKS)
 def test_set_state_validates_and_masks(task, make, device):
     env, everywhere = make(4, task_name=task), make(4, task_name=task)
     width = 2 * len(env.joint_roles)
@@ -472,7 +496,8 @@ def test_balance_states_beyond_the_limits_end_for_that_reason(make, device):
     """Balance only (the swing-up has no failures): a state beyond the limits ends with the failure reward and the
     failure's reason, also when the physics then turns non-finite (reward 0); other envs run on."""
     env = make(5)
-    assert env.end_reasons == ("running", "time_limit", "nonfinite_state", "cart_out_of_range", "pole_fell")
+    assert env.end_reasons == ("running", "time_limit", "nonfinite_state", "diverged_state", "cart_out_of_range",
+                               "pole_fell")
     states = torch.tensor([[3.5, 0.0, 0.0, 0.0], [-3.5, 0.0, 0.3, 0.0], [0.0, 0.0, 3.0, 0.0], [3.5, 0.0, 0.0, 0.0],
                            [0.2, 0.1, 0.05, -0.1]], device=device)
     start = env.set_state(states)

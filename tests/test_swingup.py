@@ -80,7 +80,7 @@ def test_episodes_end_only_by_the_time_limit(make, device):
     n = 16
     env = make(n, task_name=SWINGUP, preset=None)
     assert env.env_dt == pytest.approx(0.02) and env.max_episode_length == 500
-    assert env.end_reasons == ("running", "time_limit", "nonfinite_state")
+    assert env.end_reasons == ("running", "time_limit", "nonfinite_state", "diverged_state")
     env.reset()
     gen = torch.Generator().manual_seed(1)
     total = torch.zeros(n, dtype=torch.float64)

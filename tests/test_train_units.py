@@ -245,8 +245,8 @@ def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
     cfg, _, _ = resolve(flags)
     agent = cfg.agent
     assert (agent.cuda_graph, agent.actor.hidden_dims, agent.algorithm.class_name) == (False, [64, 64], "PPO")
-    results = [RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.98, 0.99), RunResult("a=1", 1, None, None, None, error="x"),
-               RunResult("b", 0, None, None, 50)]
+    results = [RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.98, 0.99),
+               RunResult("a=1", 1, None, None, None, error="x"), RunResult("b", 0, None, None, 50)]
     rows = table(results, ["a=1", "b"], seeds=2, task="cartpole-balance").splitlines()
     assert "play: time_limit_fraction (min)" in rows[0]
     assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 3.0 + 4.5 | 100 | 0.990 |",
