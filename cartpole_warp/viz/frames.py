@@ -193,9 +193,13 @@ class SideView:
 
 
 def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, frame_stride: int = 2) -> Path:
-    """``frames`` (T, bodies, 7) drawn by ``view`` as an animated GIF, every ``frame_stride``-th env step."""
-    images = [view.image(transforms, f"t = {i * frame_stride * env_dt:5.2f} s").convert(
-        "P", palette=Image.Palette.ADAPTIVE, colors=32) for i, transforms in enumerate(frames[::frame_stride])]
+    """``frames`` (T, bodies, 7) drawn by ``view`` as an animated GIF, every ``frame_stride``-th env step. The frames
+    share the 32-colour palette of the first (every frame has the same flat colours): mapping onto it is ~20x faster
+    than a palette per frame."""
+    images = [view.image(transforms, f"t = {i * frame_stride * env_dt:5.2f} s")
+              for i, transforms in enumerate(frames[::frame_stride])]
+    palette = images[0].convert("P", palette=Image.Palette.ADAPTIVE, colors=32)
+    images = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
     duration_ms = max(20, int(round(1000 * env_dt * frame_stride)))
 
     def save(tmp):
