@@ -21,11 +21,11 @@ PASSING = EpisodeSummary(100, 590.0, 595.0, 0.99, 1.0, 100, 0.99)
 FAILING = EpisodeSummary(100, 10.0, 20.0, 0.5, 0.0)
 
 
-def make_training(tmp_path, **eval_settings) -> Training:
+def make_training(tmp_path, logger="none", **eval_settings) -> Training:
     """A balance run of 64 training envs and 32 evaluation envs on the test device that barely learns (fixed learning
     rate of 1e-12): its policy stays the one the test writes into the actor."""
     cfg = train_config("cartpole-balance")
-    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 64, DEVICE, "none", str(tmp_path)
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 64, DEVICE, logger, str(tmp_path)
     cfg.agent.algorithm.schedule, cfg.agent.algorithm.learning_rate = "fixed", 1e-12
     for name, value in {"num_envs": 32, **eval_settings}.items():
         setattr(cfg.eval, name, value)
@@ -66,7 +66,7 @@ def test_training_episodes_that_meet_the_rule_do_not_make_a_failing_policy_solve
 
 
 def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_whatever_its_noise_shows(tmp_path):
-    training = make_training(tmp_path, min_interval=1, max_interval=3)
+    training = make_training(tmp_path, logger="tensorboard", min_interval=1, max_interval=3)
     set_policy_mean(training, BALANCING_GAINS, std=5.0)
     training_episodes(training, FAILING)
     training.runner.train_cfg.stop_when_solved = True
@@ -76,6 +76,11 @@ def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_whatever_its_nois
     assert history[-1]["evaluation"]["time_limit_fraction"] == 1.0 and history[-1]["solved"]
     assert training.runner.stop_reason == "solved"
     assert training.runner.progress.solved_at["iterations"] == 3
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(training.run_dir)).Reload()
+    assert [(e.step, e.value) for e in events.Scalars("Eval/time_limit_fraction")] == [(2, 1.0)], "TensorBoard"
 
 
 def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path):

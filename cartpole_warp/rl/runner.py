@@ -198,7 +198,7 @@ class CartpoleRunner(OnPolicyRunner):
                             learning_rate=self.alg.learning_rate, action_std=self.alg.get_policy().output_std,
                             rnd_weight=None)
         elif self.gpu_global_rank == 0:
-            self._write_metrics(it, stats, loss_dict, steps / iteration_time, collect_time, learn_time)
+            self._write_metrics(it, stats, evaluation, loss_dict, steps / iteration_time, collect_time, learn_time)
             print(self._progress_line(it, stats, steps / iteration_time, evaluation, solved, now), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
             self.on_iteration(it, stats)
@@ -239,8 +239,8 @@ class CartpoleRunner(OnPolicyRunner):
         if self.run_dir is not None:
             self.save(str(self.run_dir / BEST_CHECKPOINT))
 
-    def _write_metrics(self, it: int, stats: EpisodeSummary, loss_dict: dict, steps_per_s: float,
-                       collect_time: float, learn_time: float):
+    def _write_metrics(self, it: int, stats: EpisodeSummary, evaluation: EpisodeSummary | None, loss_dict: dict,
+                       steps_per_s: float, collect_time: float, learn_time: float):
         writer = self.logger.writer
         if writer is None:
             return
@@ -255,6 +255,10 @@ class CartpoleRunner(OnPolicyRunner):
                             "Episode/time_limit_fraction": stats.time_limit_fraction})
         if stats.full_episodes:
             scalars["Episode/full_reward_per_step"] = stats.full_reward_per_step
+        if evaluation is not None:
+            scalars.update({f"Eval/{name}": getattr(evaluation, name) for name in
+                            ("mean_reward_per_step", "time_limit_fraction", "full_reward_per_step", "mean_return")
+                            if getattr(evaluation, name) is not None})
         for tag, value in scalars.items():
             writer.add_scalar(tag, value, it)
 
