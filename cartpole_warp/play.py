@@ -150,7 +150,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
 
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
-    from .viz.viewer import ViewerUnavailable
+    from .viz import ViewerUnavailable
 
     try:
         return play(sys.argv[1:] if argv is None else argv)

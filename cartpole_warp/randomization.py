@@ -13,14 +13,17 @@ captured env step.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import newton
 import numpy as np
 import torch
 import warp as wp
 
 from .config import ConfigError, RandomizationConfig
 from .scene import Scene
+
+if TYPE_CHECKING:
+    import newton
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -197,12 +200,10 @@ class Physics:
     """The per-env physical parameters of a batched env (SI units, persistent (N, roles) and (N,) arrays), their
     draws and their way into each shard's model and solver."""
 
-    ALL_FLAGS = (newton.ModelFlags.BODY_INERTIAL_PROPERTIES | newton.ModelFlags.JOINT_DOF_FORCE_PROPERTIES
-                 | newton.ModelFlags.MODEL_PROPERTIES)
-    """Every model field ``write`` sets."""
-
     def __init__(self, cfg: RandomizationConfig, roles: tuple[str, ...], kinds: list[newton.JointType],
                  scene: Scene, num_envs: int, device: str):
+        import newton
+
         self.cfg, self.roles, self.kinds, self.device = cfg, roles, kinds, device
         self.bodies = role_bodies(scene)
         for role, body in zip(roles, self.bodies, strict=True):
@@ -251,6 +252,9 @@ class Physics:
             flags |= newton.ModelFlags.MODEL_PROPERTIES
         self.model_flags = flags
         """What a draw changes in the model (and the solver is told of); 0 when only the env's own forces change."""
+        self.all_model_flags = (newton.ModelFlags.BODY_INERTIAL_PROPERTIES
+                                | newton.ModelFlags.JOINT_DOF_FORCE_PROPERTIES | newton.ModelFlags.MODEL_PROPERTIES)
+        """Every model field ``write`` sets."""
 
     def _make_ranges(self) -> Ranges:
         cfg, dev = self.cfg, self.device
@@ -308,7 +312,7 @@ class Physics:
         physics, model = self._shard_structs(shard)
         wp.launch(write_model, dim=shard.num_envs, inputs=[self._layout, physics], outputs=[model],
                   device=self.device)
-        self._notify(shard, self.ALL_FLAGS)
+        self._notify(shard, self.all_model_flags)
 
     @staticmethod
     def _notify(shard, flags: int):
@@ -331,6 +335,8 @@ class Physics:
                            torch.tensor([self.gravity_m_s2], dtype=torch.float32), torch.zeros(1, dtype=torch.int32))
 
     def _named(self, mass, com, damping, friction, actuator_scale, gravity, delay) -> dict[str, torch.Tensor]:
+        import newton
+
         out = {}
         for r, (role, kind, body) in enumerate(zip(self.roles, self.kinds, self.bodies, strict=True)):
             slider = kind == newton.JointType.PRISMATIC

@@ -4,6 +4,9 @@ Build order (as in Newton's examples): ModelBuilder -> add_usd -> replicate -> f
 state_0 / state_1 / control. The task names the joints it drives or reads (``JointRole``: a role, the joint's name
 in the stage, its type); they are found by name, and every other joint must be fixed. Everything physical (masses,
 lengths, inertias, limits, gravity) comes from the stage.
+
+Newton is imported where a scene is built, not with this module: its import takes seconds, and the command line, the
+task registry and the configs do without it.
 """
 
 from __future__ import annotations
@@ -13,12 +16,15 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import newton
 import warp as wp
 
 from .config import BYTES_PER_ENV, ConfigError, SimConfig
 from .runtime import init_warp
+
+if TYPE_CHECKING:
+    import newton
 
 SHARDABLE_SOLVERS = ("featherstone",)
 """Solvers whose CPU scenes can step in parallel threads; mujoco-warp's tile kernels share one CPU arena, so
@@ -108,6 +114,8 @@ def pick_joint(labels: list[str], joint: JointRole, path: Path) -> int:
 def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelBuilder, list[int]]:
     """One robot from the stage: (builder, the joint of each joint role). Each role's joint must be of its kind, every
     other joint fixed."""
+    import newton
+
     path = Path(stage_path)
     if not path.is_file():
         raise StageError(f"USD stage not found: {path}")
@@ -135,6 +143,8 @@ def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelB
 
 def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBase:
     """The configured solver, set up for frictionless, undamped joints without contacts."""
+    import newton
+
     if sim.solver == "featherstone":
         return newton.solvers.SolverFeatherstone(
             model, angular_damping=0.0, update_mass_matrix_interval=sim.mass_matrix_interval
@@ -183,6 +193,8 @@ def set_gradients(solver: str, gradients: bool):
 
 def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints: list[JointRole]) -> Scene:
     """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
+    import newton
+
     init_warp()
     set_gradients(sim.solver, sim.gradients)
     robot, role_joints = load_robot(stage, joints)

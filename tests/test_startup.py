@@ -1,5 +1,6 @@
 """Start-up: the library prints nothing and changes no global setting of Warp, warmup fills an empty kernel cache so
-that the next build compiles nothing, Newton's modules compile without adjoints unless sim.gradients asks."""
+that the next build compiles nothing, Newton's modules compile without adjoints unless sim.gradients asks, a bad flag
+is answered before Newton loads."""
 
 import os
 import subprocess
@@ -45,6 +46,23 @@ def test_verbose_lets_warps_lines_through():
     result = python("import cartpole_warp; cartpole_warp.make_env(num_envs=4, device='cpu', verbose=True)")
     assert result.returncode == 0, result.stderr
     assert "Module cartpole_warp.tasks.balance" in result.stdout and "load on device 'cpu'" in result.stdout
+
+
+@pytest.mark.parametrize("script, flags", [("train", []), ("play", ["--agent", "zero"])])
+def test_a_bad_flag_is_answered_before_newton_loads(script, flags):
+    """The command line is parsed and checked before the heavy imports: a mistyped flag gets tyro's error (exit 2)
+    without Newton (seconds of import) in the process."""
+    code = f"""
+import sys
+from cartpole_warp.{script} import main
+try:
+    main({flags!r} + ["--num-envz", "3"])
+except SystemExit as stop:
+    print(stop.code, "newton" in sys.modules)
+"""
+    result = python(code)
+    assert result.stdout.split() == ["2", "False"], result.stdout + result.stderr
+    assert "--num-envz" in result.stderr
 
 
 @pytest.mark.slow

@@ -7,7 +7,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import newton
 import warp as wp
 
 from ..config import Name, NonNegative, TaskConfig
@@ -46,6 +45,8 @@ class CartTaskEnv(BatchedEnv):
         return {"force_per_action_n": self.cfg.task.max_push_effort_n * values["actuator_scale"]}
 
     def joints(self, task: CartpoleConfig) -> list[JointRole]:
+        import newton  # here, not at the top: the registry and the command line load this module without Newton
+
         kinds = [newton.JointType.PRISMATIC] + [newton.JointType.REVOLUTE] * (len(self.joint_roles) - 1)
         return [JointRole(role, getattr(task, f"{role}_joint"), kind, f"task.{role}_joint")
                 for role, kind in zip(self.joint_roles, kinds, strict=True)]

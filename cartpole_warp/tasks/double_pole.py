@@ -5,7 +5,7 @@ docstring."""
 
 from __future__ import annotations
 
-import importlib.resources
+import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,7 +18,7 @@ from .cartpole import CartpoleConfig, CartTaskEnv
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 TIP_FELL = wp.constant(FIRST_TASK_END + 1)
-NEWTON_STAGE = Path(str(importlib.resources.files("newton"))) / "examples" / "assets" / "cartpole.usda"
+NEWTON_STAGE = Path(importlib.util.find_spec("newton").origin).parent / "examples" / "assets" / "cartpole.usda"
 """Newton's cart + double pendulum: a 1 kg cart on an 8 m rail, two 1 m poles of 0.25 kg hinged in a chain."""
 
 

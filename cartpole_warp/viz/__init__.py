@@ -7,6 +7,10 @@ NEWTON_VIEWER_MODULES = ("newton._src.viewer.kernels", "newton._src.geometry.ray
 """The Warp modules that Newton's viewers load (Newton 1.8): compiled here without adjoints (``prepare_viewers``)."""
 
 
+class ViewerUnavailable(RuntimeError):
+    """A viewer cannot open here; the message says why and what to do instead."""
+
+
 def prepare_viewers() -> None:
     """Before a Newton viewer is made: its modules compile without adjoint code (a first recording on a 2-core CPU
     took ~35 s with them)."""

@@ -15,17 +15,13 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
-from . import prepare_viewers
+from . import ViewerUnavailable, prepare_viewers
 from .frames import env_bounds
 
 ROWS = 4
 """Envs shown: the first ones, one row each."""
 MARGIN_M = 0.5
 """Space around each env's reach (m)."""
-
-
-class ViewerUnavailable(RuntimeError):
-    """Newton's interactive viewer cannot open here; the message says why and what to do instead."""
 
 
 def check_viewer():

@@ -24,9 +24,8 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
-from . import prepare_viewers
+from . import ViewerUnavailable, prepare_viewers
 from .frames import env_bounds
-from .viewer import ViewerUnavailable
 
 VISER_EXTRA = "pip install 'cartpole_warp[viser]'"
 MARGIN_M = 0.5
