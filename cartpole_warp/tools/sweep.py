@@ -1,5 +1,5 @@
 """Time to a solved policy, over training settings and seeds: each run is ``python -m cartpole_warp.train`` (optionally
-followed by ``play --headless`` on its final policy), and the table says what each setting costs.
+followed by ``play --headless`` on its best policy), and the table says what each setting costs.
 
     python -m cartpole_warp.tools.sweep --device cpu --seeds 0 1 2 3 4 \\
         --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
@@ -55,7 +55,7 @@ class SweepArgs:
     """Also run play.py --headless on each result (its best policy; the run's eval.num_envs envs, one time limit)."""
     stop_when_solved: bool = False
     """End each run when solved (quicker to screen settings); by default runs go on to max_iterations, as
-    train.py does, and play judges the final policy."""
+    train.py does, and play judges the best policy the run kept."""
     log_dir: Path | None = None
     """Keep the runs here (default: a temporary folder)."""
 
