@@ -3,8 +3,11 @@
 Tests run on the CPU; ``CARTPOLE_TEST_DEVICE=cuda:0 pytest`` runs the env tests on a GPU instead.
 """
 
+import importlib
+import logging
 import os
 import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -25,6 +28,26 @@ def device() -> str:
 def repo() -> Path:
     """The repository root."""
     return Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def run_main(capsys):
+    """``run_main(script, *args)``: ``cartpole_warp.<script>.main(args)`` (train or play) in the test process, as the
+    script calls it; a ``CompletedProcess`` of its exit code and output, like a run of the script without the seconds
+    a fresh process spends importing Newton and torch."""
+
+    def run(script: str, *args) -> subprocess.CompletedProcess:
+        main = importlib.import_module(f"cartpole_warp.{script}").main
+        try:
+            code = main([str(arg) for arg in args])
+        except SystemExit as stop:
+            code = stop.code
+        finally:
+            logging.getLogger("cartpole_warp").handlers.clear()  # bound to this test's captured stdout
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out.out, out.err)
+
+    return run
 
 
 @pytest.fixture

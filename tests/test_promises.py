@@ -46,10 +46,10 @@ def test_every_loader_of_a_preset_applies_one_rule(text, message, tmp_path, devi
 
 
 @pytest.mark.parametrize("text, message", [UNKNOWN_IN_PRESETS[1], UNKNOWN_IN_PRESETS[3]])
-def test_train_py_refuses_the_same_presets(text, message, tmp_path):
+def test_train_py_refuses_the_same_presets(text, message, tmp_path, run_main):
     preset = tmp_path / "mine.yaml"
     preset.write_text(text)
-    result = train("--config", preset, "--log-dir", tmp_path / "logs")
+    result = run_main("train", "--config", preset, "--log-dir", tmp_path / "logs")
     assert result.returncode == 2 and message in result.stderr, result.stderr
     assert not (tmp_path / "logs").exists()
 
@@ -95,8 +95,9 @@ def test_torchrun_on_a_host_without_gpus_says_so(tmp_path):
     assert "torch sees no GPU on this host" in result.stderr and "processes per node" not in result.stderr
 
 
-def test_a_run_that_never_starts_announces_no_run_folder(tmp_path):
-    result = train("--num-envs", 64, "--env.sim.stage-path", tmp_path / "missing.usda", "--log-dir", tmp_path)
+def test_a_run_that_never_starts_announces_no_run_folder(tmp_path, run_main):
+    result = run_main("train", "--num-envs", 64, "--env.sim.stage-path", tmp_path / "missing.usda", "--log-dir",
+                      tmp_path)
     assert result.returncode == 2 and "USD stage not found" in result.stderr
     assert "run folder" not in result.stdout and not list(tmp_path.rglob("config.yaml"))
 

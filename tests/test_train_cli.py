@@ -3,9 +3,7 @@ continues, play.py writes a GIF and a USD recording and fails clearly without a 
 and a small configuration trains to "solved"."""
 
 import csv
-import importlib
 import json
-import logging
 import os
 import re
 import shutil
@@ -34,20 +32,6 @@ def run_script(script, *args, env=None, timeout=300):
     result = subprocess.run([sys.executable, str(REPO / script), *map(str, args)], cwd=REPO, capture_output=True,
                             text=True, timeout=timeout, env=env)
     return result
-
-
-def run_in_process(capsys, script: str, *args) -> subprocess.CompletedProcess:
-    """``script``'s ``main`` (train or play) in this process, as the script calls it: its exit code and output, like
-    ``run_script`` without the seconds a fresh process spends importing Newton and torch."""
-    main = importlib.import_module(f"cartpole_warp.{script}").main
-    try:
-        code = main([str(arg) for arg in args])
-    except SystemExit as stop:
-        code = stop.code
-    finally:
-        logging.getLogger("cartpole_warp").handlers.clear()  # bound to this test's captured stdout
-    out = capsys.readouterr()
-    return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
 def only_run(log_dir, experiment=tasks.DEFAULT_TASK):
@@ -130,12 +114,12 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
     np.testing.assert_allclose(onnx_actions, checkpoint, rtol=1e-5, atol=1e-6)
 
 
-def test_play_eval_writes_a_success_table_and_heatmap(trained, capsys):
+def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     """play.py --eval: a 2 x 2 grid of pole mass and actuator strength, 3 episodes per cell, for every task; the CSV
     has one row per cell with the factors and a success rate, the PNG is a picture, the console shows the table."""
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
-    result = run_in_process(capsys, "play", "--headless", "--eval", "--log-dir", log_dir, "--task", task,
+    result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task,
                             "--grid-x-factors", "0.5", "2", "--grid-y-factors", "0.7", "1.3", "--grid-episodes", "3")
     assert result.returncode == 0, result.stdout + result.stderr
     assert f"{task}: 3 episodes in each of 4 cells (12 envs)" in result.stdout
@@ -150,19 +134,19 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, capsys):
     assert heatmap.format == "PNG" and heatmap.size[0] > 200 and heatmap.size[1] > 200
 
 
-def test_play_eval_refuses_unknown_parameters(trained, capsys):
+def test_play_eval_refuses_unknown_parameters(trained, run_main):
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
-    result = run_in_process(capsys, "play", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-x",
+    result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-x",
                         "pole_length_m", "--grid-episodes", "1")
     assert result.returncode != 0
     assert "robustness axis 'pole_length_m' is not a settable physical parameter" in result.stderr
 
 
-def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained, capsys):
+def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained, run_main):
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
-    result = run_in_process(capsys, "play", "--headless", "--log-dir", log_dir, "--task", task, "--num-envs", "8",
+    result = run_main("play", "--headless", "--log-dir", log_dir, "--task", task, "--num-envs", "8",
                             "--steps", "40")
     assert "cartpole.mp4" in result.stdout
     assert result.returncode == 0, result.stdout + result.stderr
@@ -205,25 +189,25 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained, capsys):
     assert result_json["play_value"] == result_json[tasks.get(task).play_metric]
 
 
-def test_play_export_writes_onnx_and_torchscript(trained, tmp_path, capsys):
+def test_play_export_writes_onnx_and_torchscript(trained, tmp_path, run_main):
     log_dir, run, _ = trained
     copy = shutil.copytree(run, tmp_path / "run")
     shutil.rmtree(copy / "exported")
-    result = run_in_process(capsys, "play", "--run", copy, "--export", "--headless", "--num-envs", "2", "--steps", "2")
+    result = run_main("play", "--run", copy, "--export", "--headless", "--num-envs", "2", "--steps", "2")
     assert result.returncode == 0, result.stderr
     onnx.checker.check_model(str(copy / "exported" / "policy.onnx"))
     assert torch.jit.load(str(copy / "exported" / "policy.pt"))(torch.zeros(1, num_obs(run))).shape == (1, 1)
 
 
-def test_play_without_runs_says_what_to_do(tmp_path, capsys):
-    result = run_in_process(capsys, "play", "--headless", "--log-dir", tmp_path)
+def test_play_without_runs_says_what_to_do(tmp_path, run_main):
+    result = run_main("play", "--headless", "--log-dir", tmp_path)
     assert result.returncode == 2
     assert "no checkpoint under" in result.stderr and "run train.py first or pass --checkpoint" in result.stderr
     assert "Traceback" not in result.stderr
 
 
 @pytest.mark.parametrize("content", [b"not a checkpoint", None])
-def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, content, capsys):
+def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, content, run_main):
     _, run, _ = trained
     copy = shutil.copytree(run, tmp_path / "run")
     bad = copy / "model_7.pt"
@@ -233,7 +217,7 @@ def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, conten
         torch.save(checkpoint, bad)
     else:
         bad.write_bytes(content)
-    result = run_in_process(capsys, "play", "--headless", "--run", copy, "--num-envs", "2", "--steps", "2")
+    result = run_main("play", "--headless", "--run", copy, "--num-envs", "2", "--steps", "2")
     assert result.returncode == 2 and str(bad) in result.stderr and "Traceback" not in result.stderr
 
 
@@ -243,8 +227,8 @@ def test_play_without_a_display_suggests_headless(tmp_path):
     assert result.returncode == 1 and "--headless" in result.stderr and "Traceback" not in result.stderr
 
 
-def test_play_zero_agent_needs_no_checkpoint(tmp_path, capsys):
-    result = run_in_process(capsys, "play", "--agent", "zero", "--headless", "--log-dir", tmp_path, "--num-envs", "4",
+def test_play_zero_agent_needs_no_checkpoint(tmp_path, run_main):
+    result = run_main("play", "--agent", "zero", "--headless", "--log-dir", tmp_path, "--num-envs", "4",
                         "--steps", "300", "--video-length", "25")
     assert result.returncode == 0, result.stderr
     record = json.loads((tmp_path / "play" / "zero" / "result.json").read_text())
@@ -254,9 +238,9 @@ def test_play_zero_agent_needs_no_checkpoint(tmp_path, capsys):
     assert sum(1 for _ in imageio.get_reader(tmp_path / "play" / "zero" / "cartpole.mp4")) == 25
 
 
-def test_help_documents_flags_and_config_fields(capsys):
+def test_help_documents_flags_and_config_fields(run_main):
     for script in ("train", "play"):
-        result = run_in_process(capsys, script, "--help")
+        result = run_main(script, "--help")
         assert result.returncode == 0
         for flag in ("--num-envs", "--device", "--seed", "--env.task.episode-length-s", "--log-dir", "--checkpoint",
                      "--task"):
@@ -283,31 +267,25 @@ def test_help_documents_flags_and_config_fields(capsys):
                                       "cart-double-pole-balance, cartpole-swingup"),
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
 ])
-def test_bad_flag_values_are_clear_errors(tmp_path, capsys, args, message):
-    """train.py's own ``main`` in this process (as the script calls it; a subprocess per case would spend seconds
-    importing): exit code 2 and the message on stderr, an uncaught exception would fail the test."""
-    from cartpole_warp.train import main
-
-    with pytest.raises(SystemExit) as stop:
-        main(["--log-dir", str(tmp_path), *args])
-    stderr = capsys.readouterr().err
-    assert stop.value.code == 2 and message in stderr, stderr
+def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
+    result = run_main("train", "--log-dir", tmp_path, *args)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
     assert not (tmp_path / "rsl_rl").exists()
     if message.startswith("error:"):
-        assert stderr.strip().count("\n") == 0, "one line"
+        assert result.stderr.strip().count("\n") == 0, "one line"
 
 
-def test_a_failed_resume_changes_nothing_and_a_failed_start_leaves_no_folder(trained, tmp_path, capsys):
+def test_a_failed_resume_changes_nothing_and_a_failed_start_leaves_no_folder(trained, tmp_path, run_main):
     _, run, _ = trained
     copy = shutil.copytree(run, tmp_path / "run")
     before = {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()}
-    result = run_in_process(capsys, "train", "--resume", copy, "--agent.actor.hidden-dims", "64", "64")
+    result = run_main("train", "--resume", copy, "--agent.actor.hidden-dims", "64", "64")
     assert result.returncode == 2 and "does not match the configured networks" in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
     assert {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()} == before
-    played = run_in_process(capsys, "play", "--headless", "--run", copy, "--num-envs", "2", "--steps", "2")
+    played = run_main("play", "--headless", "--run", copy, "--num-envs", "2", "--steps", "2")
     assert played.returncode == 0, played.stderr
-    result = run_in_process(capsys, "train", "--log-dir", tmp_path / "logs", "--env.sim.stage-path",
+    result = run_main("train", "--log-dir", tmp_path / "logs", "--env.sim.stage-path",
                             tmp_path / "missing.usda")
     assert result.returncode == 2 and "USD stage not found" in result.stderr and not (tmp_path / "logs").exists()
 
