@@ -204,7 +204,9 @@ class Physics:
                  scene: Scene, num_envs: int, device: str):
         import newton
 
-        self.cfg, self.roles, self.kinds, self.device = cfg, roles, kinds, device
+        self.cfg, self.roles, self.device = cfg, roles, device
+        self.sliders = [kind == newton.JointType.PRISMATIC for kind in kinds]
+        """Per role: whether its joint slides (forces in N) rather than turns (torques in N m)."""
         self.bodies = role_bodies(scene)
         for role, body in zip(roles, self.bodies, strict=True):
             if role in cfg.com_offset_m:
@@ -335,11 +337,8 @@ class Physics:
                            torch.tensor([self.gravity_m_s2], dtype=torch.float32), torch.zeros(1, dtype=torch.int32))
 
     def _named(self, mass, com, damping, friction, actuator_scale, gravity, delay) -> dict[str, torch.Tensor]:
-        import newton
-
         out = {}
-        for r, (role, kind, body) in enumerate(zip(self.roles, self.kinds, self.bodies, strict=True)):
-            slider = kind == newton.JointType.PRISMATIC
+        for r, (role, slider, body) in enumerate(zip(self.roles, self.sliders, self.bodies, strict=True)):
             out[f"{role}_mass_kg"] = mass[:, r].clone()
             out[f"{role}_com_m"] = com[:, r].clone()
             axis_inertia = float(body.axis @ body.inertia @ body.axis)
