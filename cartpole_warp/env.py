@@ -118,6 +118,7 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
 
     @wp.func
     def all_within(q: Joints, qd: Joints, limit: float):
+        """Every joint position and velocity within +-``limit`` (so finite: a NaN fails the comparison)."""
         ok = True
         for r in range(num_joints):
             ok = ok and wp.abs(q[r]) <= limit and wp.abs(qd[r]) <= limit
@@ -225,13 +226,12 @@ def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP
         o = obs[env]
         r = float(0.0)  # noqa: UP018 (a Warp variable that the branch below assigns, not a constant)
         reason = END_NONE
-        finite = all_finite(q, qd)
-        if finite and all_within(q, qd, divergence_limit):
+        if all_within(q, qd, divergence_limit):
             o = noisy(fns.observe(q, qd, p), noise_std, rng_state, env)
             r, reason = fns.evaluate(q, qd, a, p)
         else:
             unused, reason = fns.evaluate(last_q[env], last_qd[env], a, p)
-            if finite:
+            if all_finite(q, qd):
                 wp.atomic_add(diverged_state_count, 0, 1)
                 if reason == END_NONE:
                     reason = END_DIVERGED
