@@ -96,22 +96,44 @@ def test_train_writes_every_artefact(trained):
 def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_checkpoint(trained, batch):
     import onnxruntime
 
-    from cartpole_warp.rl.runner import CartpoleRunner
-    from cartpole_warp.rl.runs import load_config
-    from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
-
     _, run, _ = trained
     obs = np.random.default_rng(batch).normal(size=(batch, num_obs(run))).astype(np.float32)
     (onnx_actions,) = onnxruntime.InferenceSession(str(run / "exported" / "policy.onnx")).run(None, {"obs": obs})
     scripted = torch.jit.load(str(run / "exported" / "policy.pt"))(torch.from_numpy(obs)).detach().numpy()
-    cfg = load_config(run)
-    runner = CartpoleRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
-    runner.load(str(run / "model_1.pt"), load_cfg={"actor": True})
-    with torch.inference_mode():
-        checkpoint = runner.policy()(torch.from_numpy(obs)).numpy()
+    checkpoint = policy_actions(run, "model_1.pt", obs)
     assert onnx_actions.shape == (batch, 1)
     np.testing.assert_allclose(onnx_actions, scripted, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(onnx_actions, checkpoint, rtol=1e-5, atol=1e-6)
+
+
+def policy_actions(run, checkpoint: str, obs: np.ndarray) -> np.ndarray:
+    """The deterministic actions of ``run``'s ``checkpoint`` for ``obs``, as play.py loads it."""
+    from cartpole_warp.rl.runner import CartpoleRunner
+    from cartpole_warp.rl.runs import load_config
+    from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+    cfg = load_config(run)
+    runner = CartpoleRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
+    runner.load(str(run / checkpoint), load_cfg={"actor": True})
+    with torch.inference_mode():
+        return runner.policy()(torch.from_numpy(obs)).numpy()
+
+
+def test_a_run_exports_its_best_policy_not_its_last(tmp_path):
+    """A run that goes on past its best evaluation exports model_best.pt's policy (the one play.py plays): the last
+    one can be worse (docs/benchmarks.md: the robust balance's collapse after solving)."""
+    result = run_script("train.py", "--num-envs", "64", "--logger", "none", "--max-iterations", "8",
+                        "--eval.min-interval", "2", "--eval.max-interval", "2",
+                        "--eval.num-envs", "16", "--log-dir", tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = only_run(tmp_path)
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["best"] is not None and summary["checkpoint"] == "model_7.pt", summary
+    obs = np.random.default_rng(0).normal(size=(32, num_obs(run))).astype(np.float32)
+    (exported,) = ReferenceEvaluator(str(run / "exported" / "policy.onnx")).run(None, {"obs": obs})
+    np.testing.assert_allclose(exported, policy_actions(run, "model_best.pt", obs), rtol=1e-5, atol=1e-6)
+    if summary["best"]["iteration"] != summary["iterations"] - 1:
+        assert not np.allclose(exported, policy_actions(run, "model_7.pt", obs), rtol=1e-3, atol=1e-4)
 
 
 def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):

@@ -23,7 +23,7 @@ from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
 from .runner import CartpoleRunner
-from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_config
+from .runs import BEST_CHECKPOINT, CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_config
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -92,7 +92,8 @@ class Training:
 
     def run(self) -> RunSummary | None:
         """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or SIGTERM, which torchrun sends its processes,
-        or, with stop_when_solved, once solved); then export the policy, draw the learning curve and write
+        or, with stop_when_solved, once solved); then export the policy play.py plays (``model_best.pt``'s where an
+        evaluation ran, else the last), draw the learning curve and write
         ``summary.json``, and return it (None in the processes that do not write)."""
         previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
@@ -106,6 +107,9 @@ class Training:
         progress = self.runner.progress
         self.timing_s["training"] = progress.train_time_s
         with timed(self.timing_s, "export"):
+            best = self.run_dir / BEST_CHECKPOINT
+            if progress.best is not None and best.exists():  # a policy can get worse after its best evaluation
+                self.runner.load(str(best), load_cfg={"actor": True})
             exports = self.runner.export(self.run_dir / EXPORT_DIR) if progress.iterations else []
         with timed(self.timing_s, "curve"):
             self.plot()
