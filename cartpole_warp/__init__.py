@@ -8,8 +8,9 @@
 
 Tasks live in ``tasks/`` (one module each, found by the registry ``cartpole_warp.tasks``); the rest is machinery that
 knows no task: ``config.py`` (the config engine), ``scene.py`` (USD -> Newton), ``env.py`` (``BatchedEnv``),
-``runtime.py`` (devices, shards, graphs), ``wrappers/`` (rsl-rl, gymnasium, SB3), ``evaluation.py`` (policy rollouts
-and episode statistics), ``viz/`` (pictures), ``rl/`` (training with rsl-rl) and ``tools/`` (benchmarks).
+``runtime.py`` (devices, shards, graphs), ``streams.py`` (torch and Warp on CUDA), ``wrappers/`` (rsl-rl, gymnasium,
+SB3), ``evaluation.py`` (policy rollouts and episode statistics), ``viz/`` (pictures), ``rl/`` (training with rsl-rl)
+and ``tools/`` (benchmarks).
 
 Importing the package registers every task's gymnasium ids (``cartpole_warp/Cartpole-v0``,
 ``cartpole_warp/CartpoleTutorial-v0``, ``cartpole_warp/CartpoleSwingup-v0``); see ``cartpole_warp.wrappers.gymnasium``.

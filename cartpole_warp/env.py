@@ -15,17 +15,19 @@ import typing
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
-import torch
 import warp as wp
 
 from . import randomization
 from .config import EnvConfig, TaskConfig
 from .files import data_path
 from .randomization import Physics, add_friction
-from .runtime import Shard, ShardedStep, TorchOrder, load_modules, resolve_device, shard_bounds, timed, warp_output
+from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
+
+if TYPE_CHECKING:
+    import torch  # imported where used: parsing a command line needs no torch
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -369,6 +371,8 @@ class BatchedEnv(abc.ABC):
                            for i, (start, stop) in enumerate(bounds)]
         self.params = params_of(self.params_type, cfg.task)
         self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
+        from .streams import TorchOrder  # torch, imported once an env is built
+
         self._order = TorchOrder(self.device)
         self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
                                self.num_envs, self.device)
@@ -444,14 +448,14 @@ class BatchedEnv(abc.ABC):
         }
 
     @property
-    def episode_length_buf(self) -> torch.Tensor:
+    def episode_length_buf(self) -> "torch.Tensor":
         """(N,) int32 time-out counter: the episode is truncated when it reaches ``max_episode_length`` (zero-copy;
         assigning copies into it, as rsl-rl's ``init_at_random_ep_len`` does to spread the time-outs). The
         ``episode_length`` reported at the end is the steps the episode really ran, whatever was assigned."""
         return self._episode_length_t
 
     @episode_length_buf.setter
-    def episode_length_buf(self, value: torch.Tensor):
+    def episode_length_buf(self, value: "torch.Tensor"):
         self._episode_length_t.copy_(value)
 
     def _apply_actions(self, shard: Shard):
@@ -521,7 +525,9 @@ class BatchedEnv(abc.ABC):
             if self.physics.drawn:
                 self.physics.draw(shard, self._rng_state, None)
 
-    def _check(self, name: str, value, shapes: tuple, dtype: torch.dtype) -> torch.Tensor:
+    def _check(self, name: str, value, shapes: tuple, dtype: "torch.dtype") -> "torch.Tensor":
+        import torch
+
         shape = " or ".join(str(tuple(s)) for s in shapes)
         expected = f"a torch.Tensor of shape {shape}, dtype {dtype}, on {self.device}"
         if not isinstance(value, torch.Tensor):
@@ -539,7 +545,7 @@ class BatchedEnv(abc.ABC):
         info.update({k: v.sum() for k, v in self._counter_views.items()})
         return info
 
-    def reset(self, seed: int | None = None) -> tuple[torch.Tensor, dict]:
+    def reset(self, seed: int | None = None) -> "tuple[torch.Tensor, dict]":
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
         with self._order:
             if seed is not None:
@@ -547,8 +553,10 @@ class BatchedEnv(abc.ABC):
             self._reset_all()
         return self.obs_buf.clone(), self._outputs()
 
-    def step(self, actions: torch.Tensor):
+    def step(self, actions: "torch.Tensor"):
         """Apply actions for one env step: (obs, reward, terminated, truncated, info), autoresetting ended envs."""
+        import torch
+
         n, a = self.num_envs, self.num_actions
         shapes = ((n, a), (n,)) if a == 1 else ((n, a),)
         actions = self._check("actions", actions, shapes, torch.float32)
@@ -557,10 +565,12 @@ class BatchedEnv(abc.ABC):
         return (self.obs_buf.clone(), self.reward_buf.clone(), self.terminated_buf.clone(),
                 self.truncated_buf.clone(), self._outputs())
 
-    def set_state(self, states: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    def set_state(self, states: "torch.Tensor", mask: "torch.Tensor | None" = None) -> "torch.Tensor":
         """Start new episodes from ``states`` (N, 2 x joint roles): for each role in ``joint_roles`` order, its
         position (m or rad) then its velocity (m/s or rad/s); where ``mask`` (N,) bool is set (everywhere by default).
         Returns the observations."""
+        import torch
+
         n = self.num_envs
         states = self._check("states", states, ((n, 2 * len(self.joint_roles)),), torch.float32)
         if not torch.isfinite(states).all():
@@ -579,7 +589,7 @@ class BatchedEnv(abc.ABC):
                           outputs=[shard.rows(self._rng_state), *self._episode_outputs(shard)], device=self.device)
         return self.obs_buf.clone()
 
-    def physical_params(self) -> dict[str, torch.Tensor]:
+    def physical_params(self) -> "dict[str, torch.Tensor]":
         """What each env simulates, in SI units: (N,) tensors named by what they are. Per joint role:
         ``<role>_mass_kg`` of the body the role's joint moves, ``<role>_com_m`` (distance from the joint to that body's
         centre of mass), ``<role>_inertia_kg_m2`` (about the centre of mass, around the joint's axis),
@@ -588,14 +598,16 @@ class BatchedEnv(abc.ABC):
         values = self.physics.values()
         return values | self.task_physical_params(values)
 
-    def task_physical_params(self, values: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    def task_physical_params(self, values: "dict[str, torch.Tensor]") -> "dict[str, torch.Tensor]":
         """The task's own physical parameters, derived from the machinery's ``values`` (none by default)."""
         return {}
 
-    def set_physical_params(self, **values: torch.Tensor):
+    def set_physical_params(self, **values: "torch.Tensor"):
         """Set what the named envs simulate from now on: (N,) tensors on ``device`` in SI units, named as in
         ``physical_params`` (derived values excepted); the others keep theirs. With randomization ``at='reset'``, an
         env's next episode start draws anew."""
+        import torch
+
         n = self.num_envs
         for name, value in values.items():
             self._check(name, value, ((n,),), value.dtype if isinstance(value, torch.Tensor) else torch.float32)
@@ -608,6 +620,6 @@ class BatchedEnv(abc.ABC):
         """Stop the shard threads (the env cannot step afterwards)."""
         self._step.close()
 
-    def get_observations(self) -> torch.Tensor:
+    def get_observations(self) -> "torch.Tensor":
         """The current observations (N, num_obs), a fresh tensor."""
         return self.obs_buf.clone()

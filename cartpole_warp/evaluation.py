@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 
 from .env import BatchedEnv
-from .runtime import TorchGraph
+from .streams import TorchGraph
 
 NO_LIMIT_STEPS = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""

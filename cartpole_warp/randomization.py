@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 import warp as wp
 
 from .config import ConfigError, RandomizationConfig
@@ -24,6 +23,7 @@ from .scene import Scene
 
 if TYPE_CHECKING:
     import newton
+    import torch  # imported where used: parsing a command line needs no torch
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -329,6 +329,8 @@ class Physics:
 
     def stage_values(self) -> dict[str, torch.Tensor]:
         """The stage's parameters (what ``values`` gives without randomization), as (1,) tensors."""
+        import torch
+
         def row(values):
             return torch.tensor([values], dtype=torch.float32)
 
@@ -357,6 +359,8 @@ class Physics:
     def set(self, values: dict[str, torch.Tensor]):
         """Copy (N,) tensors in SI units into the named parameters (ValueError for an unknown name or a value out of
         range); the caller writes them into the model."""
+        import torch
+
         names = self.settable()
         targets = {}
         mass, com = wp.to_torch(self.mass), wp.to_torch(self.com)

@@ -49,19 +49,19 @@ def test_verbose_lets_warps_lines_through():
 
 
 @pytest.mark.parametrize("script, flags", [("train", []), ("play", ["--agent", "zero"])])
-def test_a_bad_flag_is_answered_before_newton_loads(script, flags):
+def test_a_bad_flag_is_answered_before_newton_and_torch_load(script, flags):
     """The command line is parsed and checked before the heavy imports: a mistyped flag gets tyro's error (exit 2)
-    without Newton (seconds of import) in the process."""
+    without Newton or torch (seconds of import each) in the process."""
     code = f"""
 import sys
 from cartpole_warp.{script} import main
 try:
     main({flags!r} + ["--num-envz", "3"])
 except SystemExit as stop:
-    print(stop.code, "newton" in sys.modules)
+    print(stop.code, "newton" in sys.modules, "torch" in sys.modules)
 """
     result = python(code)
-    assert result.stdout.split() == ["2", "False"], result.stdout + result.stderr
+    assert result.stdout.split() == ["2", "False", "False"], result.stdout + result.stderr
     assert "--num-envz" in result.stderr
 
 

@@ -16,8 +16,6 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import torch
-
 from ..config import ConfigError, EnvConfig
 
 STOP_REASONS = (None, "solved", "interrupted")
@@ -76,6 +74,8 @@ def joint_stop(wanted: str | None, device: str, distributed: bool) -> str | None
     process (the all-reduced largest code); a process alone decides by itself, without touching the device."""
     if not distributed:
         return wanted
+    import torch  # only under torchrun: this module is imported before the command line is parsed
+
     code = torch.tensor([STOP_REASONS.index(wanted)], device=device)
     torch.distributed.all_reduce(code, op=torch.distributed.ReduceOp.MAX)
     return STOP_REASONS[int(code.item())]

@@ -20,7 +20,7 @@ from rsl_rl.algorithms import PPO
 from rsl_rl.modules.distribution import GaussianDistribution
 from torch import nn
 
-from ..runtime import TorchGraph
+from ..streams import TorchGraph
 
 
 class SyncFreeGaussian(GaussianDistribution):

@@ -29,7 +29,7 @@ from .. import tasks
 from ..env import BatchedEnv
 from ..evaluation import EpisodeStats, EpisodeSummary, FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
-from ..runtime import PhaseClock, TorchGraph
+from ..streams import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import joint_stop

@@ -13,16 +13,18 @@ spaces come from its sizes.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
-import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .. import tasks
 from ..env import BatchedEnv
+
+if TYPE_CHECKING:
+    import torch  # imported where used: parsing a command line needs no torch
 
 
 def observation_space(env: BatchedEnv) -> gym.spaces.Box:
@@ -37,6 +39,8 @@ def action_space(env: BatchedEnv) -> gym.spaces.Box:
 
 def actions_tensor(actions, num_envs: int, env: BatchedEnv) -> torch.Tensor:
     """(num_envs, num_actions) float32 tensor on the env's device from an array-like of that many values."""
+    import torch
+
     array, shape = np.asarray(actions, dtype=np.float32), (num_envs, env.num_actions)
     if array.size != num_envs * env.num_actions:
         raise ValueError(f"expected {array.size and num_envs * env.num_actions} action value(s) (shape {shape}), "
