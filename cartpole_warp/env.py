@@ -348,7 +348,13 @@ class BatchedEnv(abc.ABC):
 
     def _build(self, cfg: EnvConfig):
         """Scene, buffers, first reset and the step's graphs: every Warp module the env steps with is loaded here."""
-        self.device = resolve_device(cfg.device)
+        self.build_time_s: dict[str, float] = {}
+        """Seconds the construction took: 'newton' (Warp's start-up and Newton's import, in a process's first env),
+        'kernels' (loading or compiling the Warp modules, first launches), 'scene' (stage import, replication,
+        solver), 'capture' (the step's graphs)."""
+        with timed(self.build_time_s, "newton"):
+            self.device = resolve_device(cfg.device)
+            joints = self.joints(cfg.task)
         self.num_envs = cfg.num_envs
         self.max_episode_length = cfg.max_episode_length
         self.env_dt = cfg.sim.env_dt
@@ -357,12 +363,8 @@ class BatchedEnv(abc.ABC):
         self._kernels = build_kernels(type(self))
         stage = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
                  else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
-        joints = self.joints(cfg.task)
         cfg.randomization.validate(self.joint_roles)
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
-        self.build_time_s: dict[str, float] = {}
-        """Seconds the construction took: 'scene' (stage import, replication, solver), 'kernels' (loading or
-        compiling the Warp modules, first launches), 'capture' (the step's graphs)."""
         with timed(self.build_time_s, "kernels"):
             set_gradients(cfg.sim.solver, cfg.sim.gradients)
             load_modules(self.warp_modules(), self.device, type(self).__name__)

@@ -167,9 +167,10 @@ class RunSummary:
     exports: list[str]
     timing_s: dict[str, float] = field(default_factory=dict)
     """Seconds by phase, from the process start to the summary: 'start' (Python and the command line's imports),
-    'config', 'imports' (torch, Warp, Newton, rsl-rl), 'kernels' (loading or compiling the env's Warp modules, first
-    launches), 'scene', 'capture' (the env), 'eval_env' (the evaluation's envs), 'networks' (rsl-rl's runner, resume,
-    config.yaml), 'training' (evaluations included), 'export' (ONNX and TorchScript), 'curve'."""
+    'config', 'imports' (torch, rsl-rl, tensordict), 'newton' (Warp's start-up and Newton's import), 'kernels'
+    (loading or compiling the env's Warp modules, first launches), 'scene', 'capture' (the env), 'eval_env' (the
+    evaluation's envs), 'networks' (rsl-rl's runner, resume, config.yaml), 'training' (evaluations included), 'export'
+    (ONNX and TorchScript), 'curve'."""
     versions: dict[str, str] = field(default_factory=versions)
 
     def write(self, run_dir: Path) -> Path:
