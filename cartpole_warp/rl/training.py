@@ -23,7 +23,7 @@ from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
 from .runner import CartpoleRunner
-from .runs import BEST_CHECKPOINT, CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, save_config
+from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -107,10 +107,10 @@ class Training:
         progress = self.runner.progress
         self.timing_s["training"] = progress.train_time_s
         with timed(self.timing_s, "export"):
-            best = self.run_dir / BEST_CHECKPOINT
-            if progress.best is not None and best.exists():  # a policy can get worse after its best evaluation
-                self.runner.load(str(best), load_cfg={"actor": True})
-            exports = self.runner.export(self.run_dir / EXPORT_DIR) if progress.iterations else []
+            exports = []
+            if progress.iterations:  # play's policy: a policy can get worse after its best evaluation
+                self.runner.load(str(play_checkpoint(self.run_dir)), load_cfg={"actor": True})
+                exports = self.runner.export(self.run_dir / EXPORT_DIR)
         with timed(self.timing_s, "curve"):
             self.plot()
         last = next((h for h in reversed(progress.history) if h["episodes"]), {})
