@@ -335,6 +335,12 @@ class BatchedEnv(abc.ABC):
     """The roles of the joints the task drives or reads, in the order of its ``Joints`` vectors."""
     task_ends: ClassVar[tuple[str, ...]] = ()
     """Names of the task's failure codes FIRST_TASK_END, FIRST_TASK_END + 1, ..."""
+    obs_mirror: ClassVar[tuple[float, ...] | None] = None
+    """The task's left-right symmetry, where it has one: the signs that turn an observation into that of the mirrored
+    state (every joint position and velocity negated); training appends mirrored samples to PPO's mini-batches
+    (``agent.algorithm.symmetry``). None: no symmetry."""
+    action_mirror: ClassVar[tuple[float, ...] | None] = None
+    """The signs that mirror an action, with ``obs_mirror``."""
     functions: ClassVar[TaskFunctions]
 
     @abc.abstractmethod

@@ -109,6 +109,10 @@ class PpoConfig:
     """Target KL divergence per update for the adaptive schedule."""
     use_mixed_precision: Flag = False
     """rsl-rl's bfloat16 autocast of the losses' forward passes."""
+    symmetry: Flag = False
+    """rsl-rl's symmetry data augmentation: each mini-batch also holds its mirror images under the task's left-right
+    symmetry (``BatchedEnv.obs_mirror``; ignored for a task without one), so the policy learns no left or right bias;
+    twice the samples per update. The ``robust`` preset turns it on (docs/benchmarks.md: why)."""
 
 
 @dataclass
@@ -146,11 +150,16 @@ class RunnerConfig:
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)
 
-    def to_rsl_rl(self) -> dict:
-        """rsl-rl's ``train_cfg`` dict: class names added, our own fields left out."""
+    def to_rsl_rl(self, mirror: bool = False) -> dict:
+        """rsl-rl's ``train_cfg`` dict: class names added, our own fields left out; ``mirror``: the task has a mirror
+        (``symmetry`` applies)."""
         cfg = dataclasses.asdict(self)
         for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph"):
             del cfg[key]
+        del cfg["algorithm"]["symmetry"]
+        if self.algorithm.symmetry and mirror:
+            cfg["algorithm"]["symmetry_cfg"] = {"use_data_augmentation": True,
+                                                "data_augmentation_func": "cartpole_warp.wrappers.rsl_rl:mirror"}
         cfg["actor"]["class_name"] = "MLPModel"
         cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
         if self.algorithm.class_name == "SyncFreePPO":

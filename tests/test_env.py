@@ -87,6 +87,29 @@ def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs(task, make, ra
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_the_mirror_signs_are_the_physics_left_right_symmetry(task, make, random_actions):
+    """From the mirrored state (every joint position and velocity negated) under mirrored actions, the env gives the
+    mirrored observations and the same rewards: what PPO's symmetry augmentation assumes of ``obs_mirror``."""
+    n = 16
+    env, mirrored = make(n, task_name=task), make(n, task_name=task)
+    assert len(env.obs_mirror) == env.num_obs and len(env.action_mirror) == env.num_actions
+    obs_signs, action_signs = (torch.tensor(s, device=env.device) for s in (env.obs_mirror, env.action_mirror))
+    states = safe_states(env, n) * torch.linspace(-3, 3, n, device=env.device)[:, None]
+    obs, obs_m = env.set_state(states), mirrored.set_state(-states)
+    torch.testing.assert_close(obs_m, obs * obs_signs)
+    running = torch.ones(n, dtype=torch.bool, device=env.device)  # an ended episode restarts from a random state
+    for actions in random_actions(n, 10, scale=0.3):
+        obs, reward, terminated, truncated, _ = env.step(actions)
+        obs_m, reward_m, terminated_m, truncated_m, _ = mirrored.step(actions * action_signs)
+        torch.testing.assert_close(reward_m[running], reward[running], rtol=1e-4, atol=1e-5)
+        assert torch.equal(terminated_m[running], terminated[running])
+        running &= ~(terminated | truncated)
+        torch.testing.assert_close(obs_m[running], obs[running] * obs_signs, rtol=1e-4, atol=1e-4)
+    assert running.sum() >= n // 2
+    assert (obs * obs_signs - obs)[running].abs().amax() > 0.1, "the states moved away from the mirror plane"
+
+
+@pytest.mark.parametrize("task", TASKS)
 def test_time_outs_are_truncations_not_terminations(task, make, device):
     env = make(16, task_name=task, task={"episode_length_s": 0.1})
     assert env.max_episode_length == math.ceil(0.1 / env.env_dt - 1e-9)

@@ -12,8 +12,9 @@ from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
 def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mixed_precision=False,
-               obs_normalization=False):
+               obs_normalization=False, symmetry=False):
     cfg = train_config()
+    cfg.agent.algorithm.symmetry = symmetry
     cfg.agent.actor.obs_normalization = cfg.agent.critic.obs_normalization = obs_normalization
     cfg.agent.torch_compile_mode, cfg.agent.algorithm.use_mixed_precision = torch_compile_mode, use_mixed_precision
     cfg.env.num_envs = 64
@@ -34,10 +35,12 @@ def collect(runner):
         runner.alg.compute_returns(obs)
 
 
-@pytest.mark.parametrize("schedule", ["adaptive", "fixed"])
-def test_sync_free_update_equals_rsl_rl_update(schedule):
-    reference, sync_free = runner_for("PPO", schedule), runner_for("SyncFreePPO", schedule)
+@pytest.mark.parametrize(("schedule", "symmetry"), [("adaptive", True), ("fixed", True), ("adaptive", False)])
+def test_sync_free_update_equals_rsl_rl_update(schedule, symmetry):
+    reference, sync_free = runner_for("PPO", schedule, symmetry=symmetry), runner_for("SyncFreePPO", schedule,
+                                                                                      symmetry=symmetry)
     assert type(sync_free.alg).__name__ == "SyncFreePPO" and type(reference.alg).__name__ == "PPO"
+    assert (reference.alg.symmetry is not None) == (sync_free.alg.symmetry is not None) == symmetry
     sync_free.alg.actor.load_state_dict(reference.alg.actor.state_dict())
     sync_free.alg.critic.load_state_dict(reference.alg.critic.state_dict())
     for _ in range(3):

@@ -35,13 +35,16 @@ class SyncFreeGaussian(GaussianDistribution):
 
 
 class SyncFreePPO(PPO):
-    """rsl-rl ``PPO`` (feed-forward models, no RND or symmetry) whose ``update`` has no host sync per mini-batch."""
+    """rsl-rl ``PPO`` (feed-forward models, no RND; symmetry as data augmentation, without the mirror loss) whose
+    ``update`` has no host sync per mini-batch."""
 
     def __init__(self, actor, critic, storage, *args, cuda_graph: bool = False, **kwargs):
         self._learning_rate = None
         super().__init__(actor, critic, storage, *args, **kwargs)
-        if self.rnd or self.symmetry or actor.is_recurrent or critic.is_recurrent:
-            raise ValueError("SyncFreePPO supports feed-forward actor and critic without RND or symmetry; use PPO")
+        if self.rnd or actor.is_recurrent or critic.is_recurrent or (
+                self.symmetry and (self.symmetry.use_mirror_loss or not self.symmetry.use_data_augmentation)):
+            raise ValueError("SyncFreePPO supports feed-forward actor and critic without RND, and symmetry as data "
+                             "augmentation without the mirror loss; use PPO")
         self.cuda_graph = cuda_graph and torch.device(self.device).type == "cuda"
         """Capture the update's gradient steps (with their NCCL all-reduces under torchrun) as one CUDA graph."""
         self.optimizer = torch.optim.Adam(chain(self.actor.parameters(), self.critic.parameters()),
@@ -140,19 +143,28 @@ class SyncFreePPO(PPO):
                                     old_log_prob[index], advantages[index], tuple(p[index] for p in old_params))
 
     def _gradient_step(self, observations, actions, old_values, returns, old_log_prob, advantages, old_params):
-        """One mini-batch of rsl-rl's PPO loss and optimizer step."""
+        """One mini-batch of rsl-rl's PPO loss and optimizer step (with symmetry: the mini-batch and its mirror images,
+        the rollout's values repeated for them, entropy and KL over the original samples, as rsl-rl's PPO does)."""
         if self.normalize_advantage_per_mini_batch:
             with torch.no_grad():
                 advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        size = actions.shape[0]
+        if self.symmetry:
+            observations, actions = self.symmetry.data_augmentation_func(env=self.symmetry.env, obs=observations,
+                                                                         actions=actions)
+            copies = actions.shape[0] // size
+            old_values, returns, old_log_prob, advantages = (
+                t.repeat(copies, 1) for t in (old_values, returns, old_log_prob, advantages))
         with torch.amp.autocast(device_type=torch.device(self.device).type, enabled=self.use_mixed_precision,
                                 dtype=torch.bfloat16):
             self.actor(observations, stochastic_output=True)
             log_prob = self.actor.get_output_log_prob(actions)
             values = self.critic(observations)
-            entropy = self.actor.output_entropy.mean()
+            entropy = self.actor.output_entropy[:size].mean()
             if self.desired_kl is not None and self.schedule == "adaptive":
                 with torch.inference_mode():
-                    kl = self.actor.get_kl_divergence(old_params, self.actor.output_distribution_params)
+                    kl = self.actor.get_kl_divergence(
+                        old_params, tuple(p[:size] for p in self.actor.output_distribution_params))
                     self._adapt_learning_rate(torch.mean(kl))
             ratio = torch.exp(log_prob - torch.squeeze(old_log_prob))
             advantages = torch.squeeze(advantages)

@@ -69,7 +69,8 @@ class CartpoleRunner(OnPolicyRunner):
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints its resolved observation sets
-            super().__init__(env, cfg.agent.to_rsl_rl(), str(log_dir) if log_dir is not None else None, env.device)
+            super().__init__(env, cfg.agent.to_rsl_rl(mirror=env.obs_mirror is not None),
+                             str(log_dir) if log_dir is not None else None, env.device)
         self.train_cfg = cfg
         task = tasks.get(cfg.task)
         self.solved_rule, self.play_metric = task.solved, task.play_metric

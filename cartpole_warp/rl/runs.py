@@ -150,6 +150,10 @@ class RunSummary:
     """Episode means of the last iteration in which training episodes finished."""
     evaluation: dict | None
     """The last evaluation's episode means (the deterministic policy; what decides 'solved') and its iteration."""
+    evaluations: int
+    """Evaluations the run has had."""
+    evaluation_s: float
+    """Their seconds, part of ``train_time_s``."""
     best: dict | None
     """The best evaluation (``Progress.best``): the policy of ``model_best.pt``."""
     max_episode_length: int | None

@@ -129,6 +129,8 @@ class Training:
                                             "mean_reward_per_step", "time_limit_fraction", "full_episodes",
                                             "full_reward_per_step")},
             evaluation=({"iteration": evaluated["iteration"], **evaluated["evaluation"]} if evaluated else None),
+            evaluations=sum("evaluation" in h for h in progress.history),
+            evaluation_s=round(sum(h["evaluation"]["seconds"] for h in progress.history if "evaluation" in h), 3),
             best=progress.best,
             max_episode_length=self.max_episode_length if has_limit else None,
             env_dt_s=self.cfg.env.sim.env_dt,

@@ -105,6 +105,7 @@ class CartpoleBalanceEnv(CartTaskEnv):
     config_class = BalanceConfig
     params_type = Params
     num_obs = 4
+    obs_mirror = (-1.0,) * 4
     stage = "cartpole.usda"
     task_ends = ("cart_out_of_range", "pole_fell")
     functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset,

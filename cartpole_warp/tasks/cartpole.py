@@ -39,6 +39,7 @@ class CartTaskEnv(BatchedEnv):
 
     joint_roles = ("cart", "pole")
     num_actions = 1
+    action_mirror = (-1.0,)
 
     def task_physical_params(self, values: dict) -> dict:
         """``force_per_action_n``: the cart force (N) of action 1."""

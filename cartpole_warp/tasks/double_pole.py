@@ -144,6 +144,7 @@ class CartDoublePoleEnv(CartTaskEnv):
     config_class = DoublePoleConfig
     params_type = Params
     num_obs = 6
+    obs_mirror = (-1.0,) * 6
     stage = NEWTON_STAGE
     joint_roles = ("cart", "pole", "pole2")
     task_ends = ("cart_out_of_range", "tip_fell")

@@ -101,6 +101,7 @@ class CartpoleSwingupEnv(CartTaskEnv):
     config_class = SwingupConfig
     params_type = Params
     num_obs = 5
+    obs_mirror = (-1.0, 1.0, -1.0, -1.0, -1.0)
     stage = "cartpole_dmc.usda"
     functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset,
                               joint_forces=push_cart)

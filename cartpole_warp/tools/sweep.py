@@ -1,5 +1,7 @@
-"""Time to a solved policy, over training settings and seeds: each run is ``python -m cartpole_warp.train`` (optionally
-followed by ``play --headless`` on its best policy), and the table says what each setting costs.
+"""Time to a solved policy, over training settings and seeds: each run is train.py's ``main`` with the run's flags
+(optionally followed by ``play --headless`` on its best policy), in this process (one start-up for the whole sweep)
+or, with ``--fresh-process``, in a fresh ``python -m cartpole_warp.train`` each; the table says what each setting
+costs.
 
     python -m cartpole_warp.tools.sweep --device cpu --seeds 0 1 2 3 4 \\
         --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
@@ -8,32 +10,36 @@ followed by ``play --headless`` on its best policy), and the table says what eac
 A variant is train.py's flags written ``name=value`` (or ``name`` for a switch such as ``agent.no-cuda-graph``)
 without the dashes, several in one quoted string; a list value is comma-separated (``agent.actor.hidden-dims=64,64``).
 
-It prints two markdown tables. Per seed, as each run ends: the iteration and training seconds at which it was
-solved, the milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s
-including PPO, the task's play metric (``Task.play_metric``: the fraction of episodes that reached the time limit for
-the balance tasks, the reward per step of full episodes for the swing-up) in the evaluation that decided 'solved', and
-with ``--play`` the same metric of play.py's run of the run's best policy, next to it so that the two cannot disagree
-silently.
-Per variant, at the end: the same over the seeds (iterations and seconds as median and worst, play as the worst
-seed's). A failed run's output goes to stderr, and it counts as not solved.
+It prints two markdown tables. Per seed, as each run ends: the iteration and training seconds at which it was solved,
+the milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s including
+PPO, the evaluations of the whole run and their seconds (part of the training's), the task's play metric
+(``Task.play_metric``: the fraction of episodes that reached the time limit for the balance tasks, the reward per step
+of full episodes for the swing-up) in the evaluation that decided 'solved', and with ``--play`` the same metric of
+play.py's run of the run's best policy, next to it so that the two cannot disagree silently. Per variant, at the end:
+the same over the seeds (iterations and seconds as median and worst, play as the worst seed's). A failed run's output
+goes to stderr, and it counts as not solved.
 """
 
 from __future__ import annotations
 
+import contextlib
+import importlib
+import io
 import json
-import re
+import logging
 import shlex
 import statistics
 import subprocess
 import sys
 import tempfile
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import tyro
 
 from .. import tasks
-from ..rl.runs import PLAY_DIR, SUMMARY_FILE
+from ..rl.runs import PLAY_DIR, SUMMARY_FILE, latest_checkpoint
 
 
 @dataclass
@@ -53,11 +59,16 @@ class SweepArgs:
     """Iterations of every run (default: the variant's own, 150 for the default settings)."""
     play: bool = False
     """Also run play.py --headless on each result (its best policy; the run's eval.num_envs envs, one time limit)."""
+    play_last: bool = False
+    """With --play: play each run's last checkpoint instead of its best (does a run keep what it learned?)."""
     stop_when_solved: bool = False
     """End each run when solved (quicker to screen settings); by default runs go on to max_iterations, as
     train.py does, and play judges the best policy the run kept."""
     log_dir: Path | None = None
     """Keep the runs here (default: a temporary folder)."""
+    fresh_process: bool = False
+    """Run each training and play in a fresh Python process, as a user's ``python train.py`` does (its start-up
+    included in the wall time), instead of in this one, which imports and compiles once for every run."""
 
 
 @dataclass
@@ -72,7 +83,11 @@ class RunResult:
     solved_value: float | None = None
     """The task's play metric in the evaluation that decided 'solved'."""
     play_value: float | None = None
-    """The task's play metric of play.py's run of the run's best policy (model_best.pt, else the last)."""
+    """The task's play metric of play.py's run of the run's best policy (model_best.pt, else the last; or the last
+    with ``--play-last``)."""
+    evaluations: int | None = None
+    evaluation_s: float | None = None
+    """The evaluations' seconds, part of the training's."""
     error: str | None = None
     """The failed command's last output lines (the sweep goes on with the next run)."""
 
@@ -86,25 +101,47 @@ def variant_flags(variant: str) -> list[str]:
     return flags
 
 
+def run_script(script: str, flags: list[str], fresh_process: bool) -> subprocess.CompletedProcess:
+    """``python -m cartpole_warp.<script> <flags>``: in a fresh process, or its ``main(flags)`` in this one with its
+    output captured (an exception counts as a failure, its traceback as the output)."""
+    if fresh_process:
+        return subprocess.run([sys.executable, "-m", f"cartpole_warp.{script}", *flags], capture_output=True, text=True)
+    out, err = io.StringIO(), io.StringIO()
+    progress = logging.getLogger("cartpole_warp")
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = importlib.import_module(f"cartpole_warp.{script}").main(flags)
+    except SystemExit as stop:
+        code = stop.code
+    except Exception:  # noqa: BLE001 - a failed run is reported and the sweep goes on
+        traceback.print_exc(file=err)
+        code = 1
+    finally:
+        progress.handlers.clear()  # bound to this run's captured stdout
+    return subprocess.CompletedProcess([script, *flags], code, out.getvalue(), err.getvalue())
+
+
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
-    """One training run (and play) in a subprocess; its summary.json is the result."""
+    """One training run (and play); its summary.json is the result."""
     flags = ["--task", args.task, *variant_flags(variant), "--seed", str(seed), "--device", args.device,
              "--num-envs", str(args.num_envs),
              *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
              "--logger", "none", "--log-dir", str(log_dir),
              *(["--stop-when-solved"] if args.stop_when_solved else [])]
-    done = subprocess.run([sys.executable, "-m", "cartpole_warp.train", *flags], capture_output=True, text=True)
+    done = run_script("train", flags, args.fresh_process)
     if done.returncode != 0:
         return RunResult(variant, seed, None, None, None,
                          error=f"train.py {' '.join(flags)} failed:\n{done.stdout[-1000:]}\n{done.stderr[-2000:]}")
-    run_dir = Path(re.search(r"^run folder: (\S+)", done.stdout, re.MULTILINE).group(1))
+    run_dir = max(log_dir.rglob(SUMMARY_FILE), key=lambda path: path.stat().st_mtime).parent
     summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     solved = summary["solved_at"] or {}
     result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"],
-                       summary["collection_ms"], summary["learning_ms"], solved.get(tasks.get(args.task).play_metric))
+                       summary["collection_ms"], summary["learning_ms"], solved.get(tasks.get(args.task).play_metric),
+                       evaluations=summary["evaluations"], evaluation_s=summary["evaluation_s"])
     if args.play:
-        played = subprocess.run([sys.executable, "-m", "cartpole_warp.play", "--headless", "--run",
-                                 str(run_dir), "--device", args.device], capture_output=True, text=True)
+        last = ["--checkpoint", str(latest_checkpoint(run_dir))] if args.play_last else []
+        played = run_script("play", ["--headless", "--run", str(run_dir), *last, "--device", args.device],
+                            args.fresh_process)
         if played.returncode != 0:
             result.error = f"play.py on {run_dir} failed:\n{played.stderr[-2000:]}"
             return result
@@ -117,8 +154,9 @@ def seed_table_header(task: str) -> str:
     """Markdown header of the per-seed table."""
     metric = tasks.get(task).play_metric
     return ("| train.py flags | seed | solved at iteration | seconds to solved | ms per iteration: collection + "
-            f"learning | env-steps/s | evaluation at solved: {metric} | play: {metric} |\n"
-            "|---|---|---|---|---|---|---|---|")
+            f"learning | env-steps/s | evaluations: count, seconds | evaluation at solved: {metric} | "
+            f"play: {metric} |\n"
+            "|---|---|---|---|---|---|---|---|---|")
 
 
 def _markdown_row(cells: list[str]) -> str:
@@ -137,13 +175,14 @@ def seed_row(result: RunResult) -> str:
     """Markdown row of one run."""
     cells = [_flags_cell(result.variant), str(result.seed)]
     if result.error:
-        cells += ["failed"] + ["-"] * 5
+        cells += ["failed"] + ["-"] * 6
     else:
         solved = result.solved_iterations is not None
         cells += [str(result.solved_iterations) if solved else "not solved",
                   f"{result.solved_time_s:.1f}" if solved else "-",
                   _ms_cell(result.collection_ms, result.learning_ms) if result.collection_ms is not None else "-",
                   f"{result.env_steps_per_s:,}" if result.env_steps_per_s else "-",
+                  f"{result.evaluations}, {result.evaluation_s:.1f}" if result.evaluations is not None else "-",
                   f"{result.solved_value:.3f}" if result.solved_value is not None else "-",
                   f"{result.play_value:.3f}" if result.play_value is not None else "-"]
     return _markdown_row(cells)

@@ -30,6 +30,11 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = env.max_episode_length
         self.device = env.device
         self.cfg = env.cfg
+        self.obs_mirror, self.action_mirror = (
+            torch.tensor(signs, dtype=torch.float32, device=env.device) if signs is not None else None
+            for signs in (env.obs_mirror, env.action_mirror))
+        """The task's mirror signs (``BatchedEnv.obs_mirror``, ``action_mirror``) as tensors on the device (None: the
+        task has no symmetry)."""
 
     @property
     def episode_length_buf(self) -> torch.Tensor:
@@ -54,3 +59,14 @@ class RslRlVecEnv(VecEnv):
 
     def close(self):
         self.env.close()
+
+
+def mirror(env: RslRlVecEnv, obs: TensorDict | None = None, actions: torch.Tensor | None = None,
+           ) -> tuple[TensorDict | None, torch.Tensor | None]:
+    """rsl-rl's symmetry ``data_augmentation_func`` for any task with a mirror: each batch followed by its mirror
+    image (``obs_mirror`` and ``action_mirror`` signs), device work only (it runs inside captured updates)."""
+    if obs is not None:
+        obs = torch.cat([obs, obs.apply(lambda values: values * env.obs_mirror)])
+    if actions is not None:
+        actions = torch.cat([actions, actions * env.action_mirror])
+    return obs, actions
