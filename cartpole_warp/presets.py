@@ -109,10 +109,11 @@ class PpoConfig:
     """Target KL divergence per update for the adaptive schedule."""
     use_mixed_precision: Flag = False
     """rsl-rl's bfloat16 autocast of the losses' forward passes."""
-    symmetry: Flag = False
+    symmetry: Flag = True
     """rsl-rl's symmetry data augmentation: each mini-batch also holds its mirror images under the task's left-right
-    symmetry (``BatchedEnv.obs_mirror``; ignored for a task without one), so the policy learns no left or right bias;
-    twice the samples per update. The ``robust`` preset turns it on (docs/benchmarks.md: why)."""
+    symmetry (``BatchedEnv.obs_mirror``; ignored for a task without one), so the policy learns no left or right bias
+    (without it the robust balance's policies can drift off the rail after solving; docs/benchmarks.md). Twice the
+    samples per update."""
 
 
 @dataclass

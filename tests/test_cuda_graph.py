@@ -49,5 +49,6 @@ def test_graphed_iterations_equal_launched_ones(cuda):
 
 def test_graphed_training_solves(cuda):
     trained = runner(cuda, True)
+    trained.eval_env = cartpole_warp.make_env(num_envs=trained.train_cfg.eval.num_envs, device=cuda, seed=0)
     trained.learn(150)
     assert trained.stop_reason == "solved", trained.progress.history[-1]
