@@ -276,14 +276,15 @@ def config_type(cfg: Any) -> Any:
     return cls[tuple(bound[p] for p in cls.__parameters__)]
 
 
-def from_dict(cls: type[Config], data: Any, where: str = "config") -> Config:
+def from_dict(cls: type[Config], data: Any, where: str = "config", key_prefix: str = "") -> Config:
     """A ``cls`` dataclass tree from nested dicts, checked against the field types; unknown keys are errors.
-    ConfigError names the first bad key, e.g. ``env.sim.solver: Input should be 'featherstone' or 'mujoco'``."""
+    ConfigError names the first bad key (after ``key_prefix``, where ``data`` sits in a larger file), e.g.
+    ``env.sim.solver: Input should be 'featherstone' or 'mujoco'``."""
     try:
         return pydantic.TypeAdapter(cls).validate_python(data)
     except pydantic.ValidationError as err:
         first = err.errors()[0]
-        key = ".".join(str(part) for part in first["loc"])
+        key = key_prefix + ".".join(str(part) for part in first["loc"])
         if first["type"] == "unexpected_keyword_argument":
             owner = cls
             for part in first["loc"][:-1]:

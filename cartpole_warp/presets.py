@@ -228,9 +228,10 @@ def presets() -> list[str]:
     return sorted(p.stem for p in data_path("configs").glob("*.yaml"))
 
 
-def load_preset(preset: str) -> dict:
+def load_preset(preset: str, task: str | None = None) -> dict:
     """The overrides a preset holds, as a nested dict: a name under ``configs/`` or a path to a YAML file. ConfigError
-    for an unknown section or key anywhere but ``env`` (whose keys depend on the task), or a bad value."""
+    for an unknown section or key anywhere but ``env`` (whose keys depend on the task), a bad value, or a preset that
+    names another task than ``task`` (a preset without ``task:`` applies to any)."""
     path = Path(preset)
     if path.suffix not in (".yaml", ".yml"):
         path = data_path("configs", f"{preset}.yaml")
@@ -242,4 +243,6 @@ def load_preset(preset: str) -> dict:
         raise ConfigError(f"cannot parse {path}: {err}") from None
     data = overrides_dict(data, f"{path}: expected a mapping at the top level;")
     from_dict(PresetFile, merge(dataclasses.asdict(PresetFile()), data), f"preset {preset!r}")
+    require(task is None or data.get("task", task) == task,
+            f"preset {preset!r} is for task {data.get('task')!r}, not {task!r}")
     return data

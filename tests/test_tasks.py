@@ -34,12 +34,30 @@ def test_the_registry_finds_the_three_tasks_and_names_the_known_ones():
     assert swingup.max_episode_length == 500 and balance.max_episode_length == double.max_episode_length == 600
 
 
-def test_a_preset_for_another_task_is_refused(tmp_path):
+def test_a_preset_for_another_task_is_refused_alike_by_every_entry_point(tmp_path, run_main):
     preset = tmp_path / "swing.yaml"
-    preset.write_text("task: cartpole-swingup\nagent:\n  max_iterations: 3\n")
+    preset.write_text("task: cartpole-swingup\nagent:\n  max_iterations: 3\nenv:\n  num_envs: 8\n")
     assert train_config("cartpole-swingup", str(preset)).agent.max_iterations == 3
-    with pytest.raises(ConfigError, match="is for task 'cartpole-swingup', not 'cartpole-balance'"):
-        train_config("cartpole-balance", str(preset))
+    assert tasks.env_config("cartpole-swingup", str(preset)).num_envs == 8
+    refusal = "is for task 'cartpole-swingup', not 'cartpole-balance'"
+    for build in (lambda: train_config("cartpole-balance", str(preset)),
+                  lambda: tasks.env_config("cartpole-balance", str(preset)),
+                  lambda: tasks.make("cartpole-balance", preset=str(preset)),
+                  lambda: gym.make("cartpole_warp/Cartpole-v0", preset=str(preset))):
+        with pytest.raises(ConfigError, match=refusal):
+            build()
+    result = run_main("train", "--config", preset, "--log-dir", tmp_path)
+    assert result.returncode != 0 and refusal in result.stderr and "Traceback" not in result.stderr
+    for name in ("isaac_lab", "tutorial"):  # the balance's timings: refused for the swing-up, not applied silently
+        with pytest.raises(ConfigError, match=f"preset '{name}' is for task 'cartpole-balance'"):
+            tasks.env_config("cartpole-swingup", name)
+
+
+def test_the_env_config_of_a_task_is_validated_where_it_is_built():
+    with pytest.raises(ConfigError, match="num_envs=16,777,217"):
+        tasks.env_config("cartpole-balance", num_envs=16_777_217)
+    with pytest.raises(ConfigError, match="reset_pole_angle_rad"):
+        tasks.env_config("cartpole-balance", task={"reset_pole_angle_rad": 2.0})
 
 
 @dataclass

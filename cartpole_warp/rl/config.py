@@ -71,15 +71,15 @@ class TrainConfig(RunSettings, Generic[TaskT]):
 
 
 def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> TrainConfig:
-    """TrainConfig of ``task`` from the dataclass defaults, the task's defaults and a preset (flags may still change
-    it: ``validate`` after them)."""
-    config_class = tasks.get(task).env_class.config_class
-    cls = TrainConfig[config_class]
-    data = merge(dataclasses.asdict(cls(env=EnvConfig(task=config_class()), task=task)), tasks.get(task).defaults)
+    """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
+    refuses a preset for another task), then the dataclass defaults, the task's and the preset's agent and run
+    settings (flags may still change it: ``validate`` after them)."""
+    env = tasks.env_config(task, preset)
+    cls = TrainConfig[type(env.task)]
+    rest = {key: value for key, value in tasks.get(task).defaults.items() if key != "env"}
+    data = merge(dataclasses.asdict(cls(env=env, task=task)), rest)
     if preset is not None:
-        preset_data = load_preset(preset)
-        require(preset_data.get("task", task) == task,
-                f"preset {preset!r} is for task {preset_data.get('task')!r}, not {task!r}")
+        preset_data = {key: value for key, value in load_preset(preset, task).items() if key != "env"}
         data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
 

@@ -114,15 +114,18 @@ def get(name: str) -> Task:
 
 
 def env_config(name: str, preset: str | None = None, **overrides) -> EnvConfig:
-    """The env config of task ``name``: the dataclass defaults, the task's defaults, the preset's ``env`` section,
-    then nested keyword overrides (``num_envs=64, sim={"solver": "mujoco"}, task={...}``; None values ignored)."""
+    """The env config of task ``name``, validated: the dataclass defaults, the task's defaults, the preset's ``env``
+    section (ConfigError for a preset that names another task), then nested keyword overrides (``num_envs=64,
+    sim={"solver": "mujoco"}, task={...}``; None values ignored)."""
     task = get(name)
     cls = EnvConfig[task.env_class.config_class]
     data = merge(dataclasses.asdict(cls(task=task.env_class.config_class())), task.defaults.get("env", {}))
+    where = f"task {name!r}" + (f", preset {preset!r}" if preset else "")
     if preset is not None:
-        data = merge(data, overrides_dict(load_preset(preset).get("env", {}), f"preset {preset!r}: env:"))
+        data = merge(data, overrides_dict(load_preset(preset, name).get("env", {}), f"preset {preset!r}: env:"))
+        from_dict(cls, data, where, key_prefix="env.")  # a bad value named as the preset file writes it
     data = merge(data, overrides_dict({k: v for k, v in overrides.items() if v is not None}, "overrides:"))
-    return from_dict(cls, data, f"task {name!r}" + (f", preset {preset!r}" if preset else ""))
+    return from_dict(cls, data, where).validate()
 
 
 def make(name: str, num_envs: int | None = None, device: str | None = None, seed: int | None = None,
