@@ -13,7 +13,8 @@ SB3), ``evaluation.py`` (policy rollouts and episode statistics), ``viz/`` (pict
 and ``tools/`` (benchmarks).
 
 Importing the package registers every task's gymnasium ids (``cartpole_warp/Cartpole-v0``,
-``cartpole_warp/CartpoleTutorial-v0``, ``cartpole_warp/CartpoleSwingup-v0``); see ``cartpole_warp.wrappers.gymnasium``.
+``cartpole_warp/CartpoleTutorial-v0``, ``cartpole_warp/CartpoleSwingup-v0``, ``cartpole_warp/CartDoublePole-v0``:
+``cartpole_warp.wrappers.gymnasium.env_ids()``). DESIGN.md (in the repository) has the layers and the task seam.
 """
 
 from . import tasks
