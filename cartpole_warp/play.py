@@ -138,7 +138,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
         require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
         require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
-        axes = args.grid(tasks.get(cfg.task).env_class.joint_roles)
+        axes = args.grid(cfg.task_spec.env_class.joint_roles)
         require(all(axis.factors and min(axis.factors) >= 0 for axis in axes),
                 "every --grid-*-factors list needs factors >= 0")
         cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
@@ -177,7 +177,7 @@ def play(argv: list[str]) -> int:
 
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
-        task = tasks.get(cfg.task)
+        task = cfg.task_spec
         env = task.env_class(cfg.env)
         if checkpoint is not None:
             from .rl.runner import CartpoleRunner
@@ -249,10 +249,10 @@ def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy, checkpoin
     """--eval: the grid's success rates, printed and written as CSV and PNG."""
     from .robustness import evaluate_grid, format_table, plot_heatmap, write_table
 
-    axes = args.grid(tasks.get(cfg.task).env_class.joint_roles)
+    axes = args.grid(cfg.task_spec.env_class.joint_roles)
     print(f"{cfg.task}: {args.grid_episodes} episodes in each of {env.num_envs // args.grid_episodes} cells "
           f"({env.num_envs} envs) ...", flush=True)
-    result = evaluate_grid(env, policy, axes, args.grid_episodes, tasks.get(cfg.task).solved)
+    result = evaluate_grid(env, policy, axes, args.grid_episodes, cfg.task_spec.solved)
     print(format_table(result))
     output = output_dir(args, checkpoint)
     who = f"{checkpoint.parent.name}/{checkpoint.name}" if checkpoint else f"{args.agent} policy"

@@ -49,6 +49,12 @@ class TrainConfig(RunSettings, Generic[TaskT]):
     agent: RunnerConfig = field(default_factory=RunnerConfig)
 
     @property
+    def task_spec(self) -> tasks.Task:
+        """The registered task that ``task`` names (its env class, solved rule, play metric): the one lookup by name
+        that training needs, passed along from here."""
+        return tasks.get(self.task)
+
+    @property
     def experiment(self) -> str:
         """The experiment folder's name: ``agent.experiment_name``, or the task's name."""
         return self.agent.experiment_name or self.task
@@ -57,7 +63,7 @@ class TrainConfig(RunSettings, Generic[TaskT]):
         """Raise ConfigError naming the first invalid value and what is allowed; return self (each field's type and
         range are checked by ``checked`` where flags become a config; the checks here relate fields)."""
         self.env.validate()
-        require(isinstance(self.env.task, tasks.get(self.task).env_class.config_class),
+        require(isinstance(self.env.task, self.task_spec.env_class.config_class),
                 f"env.task holds {type(self.env.task).__name__}, not the settings of task {self.task!r}")
         require(self.eval.min_interval <= self.eval.max_interval,
                 f"eval.min_interval ({self.eval.min_interval}) must be at most eval.max_interval "

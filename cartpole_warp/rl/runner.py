@@ -1,6 +1,6 @@
 """``CartpoleRunner``: rsl-rl's ``OnPolicyRunner`` with the training loop reporting each iteration, for any task.
 
-    runner = CartpoleRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, log_dir)
+    runner = CartpoleRunner(RslRlVecEnv(cfg.task_spec.env_class(cfg.env)), cfg, log_dir)
     runner.learn(cfg.agent.max_iterations)     # runner.request_stop() ends it after the current iteration
 
 It overrides, openly, what rsl-rl offers no hook for: ``learn`` (rsl-rl's rollout / returns / update loop, then
@@ -25,7 +25,6 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
-from .. import tasks
 from ..env import BatchedEnv
 from ..evaluation import EpisodeStats, EpisodeSummary, FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
@@ -72,7 +71,7 @@ class CartpoleRunner(OnPolicyRunner):
             super().__init__(env, cfg.agent.to_rsl_rl(mirror=env.obs_mirror is not None),
                              str(log_dir) if log_dir is not None else None, env.device)
         self.train_cfg = cfg
-        task = tasks.get(cfg.task)
+        task = cfg.task_spec
         self.solved_rule, self.play_metric = task.solved, task.play_metric
         self.eval_env = eval_env
         self._evaluation: FirstEpisodesRun | None = None

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import torch
 
-from .. import tasks
 from ..config import ConfigError
 from ..runtime import timed
 from ..wrappers.rsl_rl import RslRlVecEnv
@@ -48,7 +47,7 @@ class Training:
         torch.manual_seed(env_cfg.seed)
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
-        self.task = tasks.get(cfg.task)
+        self.task = cfg.task_spec
         self.env = RslRlVecEnv(self.task.env_class(env_cfg))
         self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
         """Where the run's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); summary.json keeps

@@ -19,7 +19,6 @@ from collections.abc import Callable
 
 import torch
 
-from .. import tasks
 from ..cli import quiet_libraries
 from ..rl.runner import CartpoleRunner
 from ..train import resolve
@@ -43,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.manual_seed(cfg.env.seed)
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
-    env = RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env))
+    env = RslRlVecEnv(cfg.task_spec.env_class(cfg.env))
     runner = CartpoleRunner(env, cfg, None)
     device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg
     runner.learn(3)
