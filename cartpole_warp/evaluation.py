@@ -1,4 +1,5 @@
-"""Episode statistics summed on the device, and running a policy on a batched env: trained, zero or random policies.
+"""Running a policy on a batched env (trained, zero or random policies) and the deterministic evaluation that decides
+'solved'.
 
 A policy is any ``policy(obs) -> actions`` callable on torch tensors, obs (N, num_obs) -> actions (N, num_actions).
 """
@@ -11,67 +12,13 @@ from dataclasses import dataclass
 import torch
 
 from .env import BatchedEnv
+from .statistics import EpisodeStats, EpisodeSummary
 from .streams import TorchGraph
 
 NO_LIMIT_STEPS = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""
 Policy = Callable[[torch.Tensor], torch.Tensor]
 """``policy(obs (N, num_obs)) -> actions (N, num_actions)``, torch tensors on one device."""
-
-
-@dataclass
-class EpisodeSummary:
-    """Means over a set of finished episodes (None where no episode finished)."""
-
-    episodes: int
-    mean_return: float | None
-    mean_length: float | None
-    """Env steps."""
-    mean_reward_per_step: float | None
-    time_limit_fraction: float | None
-    """Fraction of the episodes that reached the time limit instead of failing."""
-    full_episodes: int = 0
-    """Episodes that ran the whole time limit (the first episodes of a run with random episode starts are shorter)."""
-    full_reward_per_step: float | None = None
-    """Mean reward per step of the full episodes."""
-
-
-class EpisodeStats:
-    """Sums over finished episodes, kept on the device: ``add`` never waits for the device, ``pop`` reads once.
-    An episode is full when it ran ``max_episode_length`` steps."""
-
-    def __init__(self, device: str | torch.device, max_episode_length: int):
-        self.max_episode_length = max_episode_length
-        self._sums = torch.zeros(7, dtype=torch.float64, device=device)
-        """episodes, returns, lengths, rewards per step, episodes that reached the time limit, full episodes, their
-        rewards per step."""
-
-    def add(self, ended: torch.Tensor, returns: torch.Tensor, lengths: torch.Tensor, timed_out: torch.Tensor):
-        """Count the episodes where ``ended`` (N,) bool: their returns, lengths (env steps) and whether they reached
-        the time limit; the values where ``ended`` is False are ignored."""
-        lengths, returns = lengths.to(torch.float64), returns.to(torch.float64)
-        per_step = returns / lengths.clamp(min=1)
-        full = (lengths >= self.max_episode_length).to(torch.float64)
-        values = torch.stack((torch.ones_like(returns), returns, lengths, per_step, timed_out.to(torch.float64), full,
-                              full * per_step))
-        self._sums += torch.where(ended, values, 0.0).sum(dim=1)
-
-    def summary(self) -> EpisodeSummary:
-        """Means over the episodes counted so far (one read from the device)."""
-        count, returns, lengths, per_step, timed_out, full, full_per_step = self._sums.tolist()
-        if count == 0:
-            return EpisodeSummary(0, None, None, None, None)
-        return EpisodeSummary(int(count), returns / count, lengths / count, per_step / count, timed_out / count,
-                              int(full), full_per_step / full if full else None)
-
-    def pop(self, all_processes: bool = False) -> EpisodeSummary:
-        """The summary so far (``all_processes``: summed over the processes of a torchrun job first); then start
-        afresh."""
-        if all_processes:
-            torch.distributed.all_reduce(self._sums, op=torch.distributed.ReduceOp.SUM)
-        result = self.summary()
-        self._sums.zero_()
-        return result
 
 
 def zero_policy(obs: torch.Tensor, num_actions: int = 1) -> torch.Tensor:

@@ -14,6 +14,7 @@ deterministically (the Gaussian's mean). Also installed as ``python -m cartpole_
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
@@ -221,15 +222,13 @@ def play(argv: list[str]) -> int:
                  else f"the {steps}-step cap")
         solved = task.solved(stats)
         print(f"{cfg.task}: {stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
-              f"mean return {stats.mean_return:.2f}, mean length {stats.mean_length:.1f} steps "
-              f"({stats.mean_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "
+              f"mean return {stats.mean_return:.2f}, mean length {stats.mean_episode_length:.1f} steps "
+              f"({stats.mean_episode_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "
               f"reached {limit}: {stats.time_limit_fraction:.1%}; {task.play_metric} "
               f"{getattr(stats, task.play_metric):.3f}: {'solved' if solved else 'not solved'}")
         record = {"task": cfg.task, "agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None,
-                  "num_envs": env.num_envs, "steps": steps, "episodes": stats.episodes,
-                  "mean_return": stats.mean_return, "mean_episode_length": stats.mean_length,
-                  "mean_reward_per_step": stats.mean_reward_per_step, "time_limit_fraction": stats.time_limit_fraction,
-                  "full_reward_per_step": stats.full_reward_per_step, "play_metric": task.play_metric,
+                  "num_envs": env.num_envs, "steps": steps,
+                  **dataclasses.asdict(stats), "play_metric": task.play_metric,
                   "play_value": getattr(stats, task.play_metric), "solved": solved}
         result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
         print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")

@@ -142,3 +142,11 @@ def test_a_task_from_outside_the_package_builds_trains_plays_and_reaches_gymnasi
     obs, _ = single.reset(seed=1)
     assert obs.shape == (3,)
     single.close()
+
+
+def test_a_misspelt_play_metric_fails_at_registration():
+    balance = tasks.get("cartpole-balance")
+    with pytest.raises(ValueError, match="play_metric 'time_limit_fractoin' is not one of mean_return, "):
+        tasks.register(tasks.Task(name="misspelt", env_class=balance.env_class, solved=balance.solved,
+                                  play_metric="time_limit_fractoin", summary="a typo"))
+    assert "misspelt" not in tasks.names()

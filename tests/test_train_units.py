@@ -18,7 +18,6 @@ from tensordict import TensorDict
 import cartpole_warp
 from cartpole_warp import tasks
 from cartpole_warp.config import ConfigError
-from cartpole_warp.evaluation import EpisodeStats, EpisodeSummary
 from cartpole_warp.files import atomic_write
 from cartpole_warp.rl.config import RunnerConfig, train_config
 from cartpole_warp.rl.curve import plot_learning_curve
@@ -31,6 +30,7 @@ from cartpole_warp.rl.runs import (
     new_run_dir,
     save_config,
 )
+from cartpole_warp.statistics import EpisodeStats, EpisodeSummary
 from cartpole_warp.train import resolve
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
@@ -159,7 +159,7 @@ def test_episode_stats_average_the_ended_episodes_and_the_full_ones():
     ended = torch.tensor([True, True, False])
     stats.add(ended, torch.tensor([10.0, -2.0, 99.0]), torch.tensor([10, 1, 10]), torch.tensor([True, False, True]))
     summary = stats.pop()
-    assert summary.episodes == 2 and summary.mean_return == 4.0 and summary.mean_length == 5.5
+    assert summary.episodes == 2 and summary.mean_return == 4.0 and summary.mean_episode_length == 5.5
     assert math.isclose(summary.mean_reward_per_step, (1.0 - 2.0) / 2) and summary.time_limit_fraction == 0.5
     assert summary.full_episodes == 1 and summary.full_reward_per_step == 1.0
     assert stats.summary().episodes == 0 and stats.summary().mean_return is None

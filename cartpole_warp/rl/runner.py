@@ -26,8 +26,9 @@ from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
 from ..env import BatchedEnv
-from ..evaluation import EpisodeStats, EpisodeSummary, FirstEpisodesRun, Policy, evaluate
+from ..evaluation import FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
+from ..statistics import EpisodeStats, EpisodeSummary
 from ..streams import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
@@ -182,10 +183,10 @@ class CartpoleRunner(OnPolicyRunner):
         p.iterations, p.env_steps = it + 1, p.env_steps + steps
         p.train_time_s += self._tick - now + iteration_time
         record = {"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
-                  **_episode_means(stats), "env_steps_per_s": steps / iteration_time,
+                  **dataclasses.asdict(stats), "env_steps_per_s": steps / iteration_time,
                   "collection_ms": collect_time * 1e3, "learning_ms": learn_time * 1e3, "solved": solved}
         if evaluation is not None:
-            record["evaluation"] = _episode_means(evaluation) | {"seconds": round(self._tick - now, 3)}
+            record["evaluation"] = dataclasses.asdict(evaluation) | {"seconds": round(self._tick - now, 3)}
         p.history.append(record)
         if solved and p.solved_at is None:
             p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
@@ -250,7 +251,8 @@ class CartpoleRunner(OnPolicyRunner):
                         "Perf/total_fps": steps_per_s, "Perf/collection_time": collect_time,
                         "Perf/learning_time": learn_time})
         if stats.episodes:
-            scalars.update({"Train/mean_reward": stats.mean_return, "Train/mean_episode_length": stats.mean_length,
+            scalars.update({"Train/mean_reward": stats.mean_return,
+                            "Train/mean_episode_length": stats.mean_episode_length,
                             "Episode/reward_per_step": stats.mean_reward_per_step,
                             "Episode/time_limit_fraction": stats.time_limit_fraction})
         if stats.full_episodes:
@@ -272,8 +274,9 @@ class CartpoleRunner(OnPolicyRunner):
             full = ""
             if self.solved_rule.full_episodes_only:  # the rule's own figure, padded so the columns stay aligned
                 full = (f" (full {stats.full_reward_per_step:5.3f})" if stats.full_episodes else "").ljust(13)
-            episodes = (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {stats.mean_length * dt:5.2f} s "
-                        f"({stats.mean_length:5.0f}/{limit}) | {stats.episodes:5d} ep")
+            length = stats.mean_episode_length
+            episodes = (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {length * dt:5.2f} s "
+                        f"({length:5.0f}/{limit}) | {stats.episodes:5d} ep")
         else:
             episodes = "no episode finished this iteration".ljust(60)
         width = len(str(self._end_iteration))
@@ -349,9 +352,3 @@ class CartpoleRunner(OnPolicyRunner):
         finally:
             onnx_logger.setLevel(level)
         return [out_dir / "policy.onnx", out_dir / "policy.pt"]
-
-
-def _episode_means(stats: EpisodeSummary) -> dict:
-    return {"episodes": stats.episodes, "mean_return": stats.mean_return, "mean_episode_length": stats.mean_length,
-            "mean_reward_per_step": stats.mean_reward_per_step, "time_limit_fraction": stats.time_limit_fraction,
-            "full_episodes": stats.full_episodes, "full_reward_per_step": stats.full_reward_per_step}

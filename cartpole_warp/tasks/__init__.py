@@ -20,6 +20,7 @@ from typing import Any
 from ..config import ConfigError, EnvConfig, from_dict, merge, overrides_dict
 from ..env import BatchedEnv
 from ..presets import load_preset
+from ..statistics import METRICS, EpisodeSummary
 
 DEFAULT_TASK = "cartpole-balance"
 """The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""
@@ -38,8 +39,8 @@ class SolvedRule:
     """... where True: the mean reward per step over the episodes that ran the whole time limit (at least one must
     have)."""
 
-    def __call__(self, summary: Any) -> bool:
-        """Whether ``summary`` (an ``evaluation.EpisodeSummary``) meets the rule."""
+    def __call__(self, summary: EpisodeSummary) -> bool:
+        """Whether ``summary`` meets the rule."""
         per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
         if per_step is None or summary.time_limit_fraction is None:
             return False
@@ -74,7 +75,7 @@ class Task:
     """The env (its docstring is the task's spec; its config class, sizes, stage and joint roles)."""
     solved: SolvedRule
     play_metric: str
-    """The ``evaluation.EpisodeSummary`` field that play.py reports first and the sweep tabulates."""
+    """The ``EpisodeSummary`` mean (``statistics.METRICS``) that play.py reports first and the sweep tabulates."""
     summary: str
     """One line for ``--help`` and the README's table."""
     defaults: dict = field(default_factory=dict)
@@ -88,7 +89,10 @@ _TASKS: dict[str, Task] = {}
 
 
 def register(task: Task) -> Task:
-    """Add ``task`` to the registry (a task module calls this once); ValueError if its name is taken."""
+    """Add ``task`` to the registry (a task module calls this once); ValueError if its name is taken or its
+    ``play_metric`` names no episode mean."""
+    if task.play_metric not in METRICS:
+        raise ValueError(f"task {task.name!r}: play_metric {task.play_metric!r} is not one of {', '.join(METRICS)}")
     if task.name in _TASKS and _TASKS[task.name] != task:
         raise ValueError(f"task {task.name!r} is already registered")
     _TASKS[task.name] = task

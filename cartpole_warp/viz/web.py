@@ -145,7 +145,7 @@ class TrainingView:
         scalars = {}
         if summary.mean_reward_per_step is not None:
             scalars = {"reward per step": summary.mean_reward_per_step,
-                       "episode length (s)": summary.mean_length * self.viewer.env.env_dt}
+                       "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
         self.viewer.draw(float(iteration), scalars)
         took = time.perf_counter() - started
         self._next_draw = started + took * (1 + self.DRAW_RATIO)
