@@ -13,6 +13,7 @@ import time
 import pytest
 import torch
 from PIL import Image
+from rsl_rl.utils import resolve_callable
 from tensordict import TensorDict
 
 import cartpole_warp
@@ -21,7 +22,7 @@ from cartpole_warp.config import ConfigError
 from cartpole_warp.files import atomic_write
 from cartpole_warp.rl.config import RunnerConfig, train_config
 from cartpole_warp.rl.curve import plot_learning_curve
-from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.rl.runner import CartpoleRunner, to_rsl_rl
 from cartpole_warp.rl.runs import (
     RunError,
     latest_checkpoint,
@@ -32,7 +33,7 @@ from cartpole_warp.rl.runs import (
 )
 from cartpole_warp.statistics import EpisodeStats, EpisodeSummary
 from cartpole_warp.train import resolve
-from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv, mirror
 
 
 def test_preset_then_flags_override_the_dataclass_defaults(tmp_path):
@@ -118,7 +119,7 @@ def test_help_lists_every_config_field_with_its_docstring_and_the_tasks(task):
 
 
 def test_runner_config_is_rsl_rl_train_cfg():
-    cfg = RunnerConfig().to_rsl_rl()
+    cfg = to_rsl_rl(RunnerConfig())
     assert cfg["algorithm"]["class_name"] == "cartpole_warp.rl.ppo:SyncFreePPO"
     assert cfg["algorithm"]["entropy_coef"] == 0.005
     assert cfg["actor"]["class_name"] == cfg["critic"]["class_name"] == "MLPModel"
@@ -126,10 +127,13 @@ def test_runner_config_is_rsl_rl_train_cfg():
         "class_name": "cartpole_warp.rl.ppo:SyncFreeGaussian", "init_std": 1.0}
     assert cfg["num_steps_per_env"] == 8 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
     assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
-    assert RunnerConfig(logger="none").to_rsl_rl()["logger"]["class_name"].endswith(":NullLogWriter")
+    assert to_rsl_rl(RunnerConfig(logger="none"))["logger"]["class_name"].endswith(":NullLogWriter")
+    assert "symmetry_cfg" not in cfg["algorithm"], "no mirror, no symmetry"
+    symmetry = to_rsl_rl(RunnerConfig(), mirror=True)["algorithm"]["symmetry_cfg"]
+    assert resolve_callable(symmetry["data_augmentation_func"]) is mirror and symmetry["use_data_augmentation"]
     isaac_lab = train_config(preset="isaac_lab").agent
-    assert isaac_lab.to_rsl_rl()["algorithm"]["class_name"] == "PPO"
-    assert isaac_lab.to_rsl_rl()["actor"]["distribution_cfg"]["class_name"] == "GaussianDistribution"
+    assert to_rsl_rl(isaac_lab)["algorithm"]["class_name"] == "PPO"
+    assert to_rsl_rl(isaac_lab)["actor"]["distribution_cfg"]["class_name"] == "GaussianDistribution"
     assert (isaac_lab.num_steps_per_env, isaac_lab.algorithm.num_learning_epochs, isaac_lab.algorithm.num_mini_batches,
             isaac_lab.algorithm.desired_kl) == (16, 5, 4, 0.01)
     assert isaac_lab.actor.activation == isaac_lab.critic.activation == "elu", "Isaac Lab's cartpole uses ELU"

@@ -1,5 +1,5 @@
 """Training configuration: ``task`` names the registered task, ``agent`` is shaped like rsl-rl's own ``train_cfg``
-(``RunnerConfig.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
+(``rl.runner.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
 shows.
 
 The defaults are the dataclass defaults, then the task's own (``Task.defaults``). A preset (``configs/<name>.yaml``)
@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Generic
 
 from .. import tasks
+from ..agent import ActorConfig, DistributionConfig, ModelConfig, PpoConfig, RunnerConfig
 from ..config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
@@ -26,15 +27,7 @@ from ..config import (
     overrides_dict,
     require,
 )
-from ..presets import (
-    ActorConfig,
-    DistributionConfig,
-    ModelConfig,
-    PpoConfig,
-    RunnerConfig,
-    RunSettings,
-    load_preset,
-)
+from ..presets import RunSettings, load_preset
 
 
 @dataclass(kw_only=True)

@@ -25,15 +25,17 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
+from ..agent import RunnerConfig
 from ..env import BatchedEnv
 from ..evaluation import FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
 from ..statistics import EpisodeStats, EpisodeSummary
 from ..streams import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
+from ..wrappers.rsl_rl import mirror as mirror_batch
 from .config import TrainConfig
 from .distributed import joint_stop
-from .ppo import SyncFreePPO
+from .ppo import SyncFreeGaussian, SyncFreePPO
 from .runs import BEST_CHECKPOINT, Progress, RunError
 
 
@@ -69,7 +71,7 @@ class CartpoleRunner(OnPolicyRunner):
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints its resolved observation sets
-            super().__init__(env, cfg.agent.to_rsl_rl(mirror=env.obs_mirror is not None),
+            super().__init__(env, to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None),
                              str(log_dir) if log_dir is not None else None, env.device)
         self.train_cfg = cfg
         task = cfg.task_spec
@@ -352,3 +354,33 @@ class CartpoleRunner(OnPolicyRunner):
         finally:
             onnx_logger.setLevel(level)
         return [out_dir / "policy.onnx", out_dir / "policy.pt"]
+
+
+def to_rsl_rl(agent: RunnerConfig, mirror: bool = False) -> dict:
+    """rsl-rl's ``train_cfg`` dict of ``agent``: class names added (this package's as ``module:name`` of the classes
+    themselves), our own fields left out; ``mirror``: the task has a mirror (``symmetry`` applies)."""
+    cfg = dataclasses.asdict(agent)
+    for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph"):
+        del cfg[key]
+    del cfg["algorithm"]["symmetry"]
+    if agent.algorithm.symmetry and mirror:
+        cfg["algorithm"]["symmetry_cfg"] = {"use_data_augmentation": True,
+                                            "data_augmentation_func": _path(mirror_batch)}
+    cfg["actor"]["class_name"] = "MLPModel"
+    cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
+    if agent.algorithm.class_name == "SyncFreePPO":
+        cfg["algorithm"]["class_name"] = _path(SyncFreePPO)
+        cfg["algorithm"]["cuda_graph"] = agent.cuda_graph
+        cfg["actor"]["distribution_cfg"]["class_name"] = _path(SyncFreeGaussian)
+    cfg["critic"]["class_name"] = "MLPModel"
+    cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
+    if agent.logger == "wandb":
+        cfg["logger"] = {"class_name": "WandbLogWriter", "project_name": agent.wandb_project}
+    elif agent.logger == "none":
+        cfg["logger"] = {"class_name": _path(NullLogWriter)}
+    return cfg
+
+
+def _path(obj) -> str:
+    """``module:name``, as rsl-rl's ``resolve_callable`` finds a class or function."""
+    return f"{obj.__module__}:{obj.__qualname__}"

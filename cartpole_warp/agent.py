@@ -1,0 +1,131 @@
+"""rsl-rl's training settings as dataclasses, shaped like its ``train_cfg`` (the ``agent`` section of a training config
+and of a preset): the runner, PPO, the actor and critic networks. ``rl.runner.to_rsl_rl`` turns them into rsl-rl's
+dict; the preset loader checks a preset's ``agent`` section against them, so an unknown key is refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Annotated, Literal
+
+import pydantic
+import tyro
+
+from .config import NO_UNKNOWN_KEYS, Count, Flag, Fraction, Name, NonNegative, Positive
+
+Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
+"""rsl-rl's activation names (``rsl_rl.utils.resolve_nn_activation``)."""
+Schedule = Literal["adaptive", "fixed"]
+Algorithm = Literal["PPO", "SyncFreePPO"]
+"""rsl-rl's ``PPO``, or ``SyncFreePPO`` (``cartpole_warp.rl.ppo``: the same update without host syncs)."""
+MetricsLogger = Literal["tensorboard", "wandb", "none"]
+
+
+@dataclass
+class DistributionConfig:
+    """The actor's Gaussian action noise (rsl-rl ``GaussianDistribution``)."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    init_std: Positive = 1.0
+    """Initial standard deviation (actions are in [-1, 1])."""
+
+
+@dataclass
+class ModelConfig:
+    """An rsl-rl ``MLPModel``."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    hidden_dims: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [32, 32])
+    """Hidden layer widths."""
+    activation: Activation = "elu"
+    """Activation function of the hidden layers (docs/benchmarks.md compares them)."""
+    obs_normalization: Flag = False
+    """Normalise observations with running mean/std statistics inside the network."""
+
+
+@dataclass
+class ActorConfig(ModelConfig):
+    """The policy network: an MLP whose output is the mean of a Gaussian."""
+
+    distribution_cfg: DistributionConfig = field(default_factory=DistributionConfig)
+
+
+@dataclass
+class PpoConfig:
+    """rsl-rl ``PPO`` hyper-parameters. The defaults are tuned for wall-clock time to a solved balance task (one epoch
+    of eight mini-batches, a looser KL target, the sync-free update); ``configs/isaac_lab.yaml`` holds Isaac Lab's."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    class_name: Algorithm = "SyncFreePPO"
+    """'PPO' (rsl-rl's) or 'SyncFreePPO' (the same update, no host sync per mini-batch: faster on a GPU)."""
+
+    num_learning_epochs: Count = 1
+    """Passes over each rollout per iteration."""
+    num_mini_batches: Count = 8
+    """Mini-batches per epoch."""
+    clip_param: Positive = 0.2
+    """PPO ratio clip."""
+    gamma: Annotated[Fraction, pydantic.Field(gt=0)] = 0.99
+    """Discount factor per env step."""
+    lam: Fraction = 0.95
+    """GAE lambda."""
+    value_loss_coef: NonNegative = 1.0
+    """Weight of the value loss."""
+    entropy_coef: NonNegative = 0.005
+    """Weight of the entropy bonus."""
+    learning_rate: Positive = 1.0e-3
+    """Initial Adam learning rate (adapted when schedule is 'adaptive')."""
+    max_grad_norm: Positive = 1.0
+    """Gradient norm clip."""
+    use_clipped_value_loss: Flag = True
+    """Clip the value-function update like the policy update."""
+    schedule: Schedule = "adaptive"
+    """Learning-rate schedule: 'adaptive' (follow desired_kl) or 'fixed'."""
+    desired_kl: Positive = 0.02
+    """Target KL divergence per update for the adaptive schedule."""
+    use_mixed_precision: Flag = False
+    """rsl-rl's bfloat16 autocast of the losses' forward passes."""
+    symmetry: Flag = True
+    """rsl-rl's symmetry data augmentation: each mini-batch also holds its mirror images under the task's left-right
+    symmetry (``BatchedEnv.obs_mirror``; ignored for a task without one), so the policy learns no left or right bias
+    (without it the robust balance's policies can drift off the rail after solving; docs/benchmarks.md). Twice the
+    samples per update."""
+
+
+@dataclass
+class RunnerConfig:
+    """rsl-rl's ``OnPolicyRunner`` configuration (its ``train_cfg``), plus the run's length and name."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    num_steps_per_env: Count = 8
+    """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
+    max_iterations: Annotated[Count, tyro.conf.arg(aliases=("--max-iterations",))] = 150
+    """PPO iterations to run (on --resume: iterations to add)."""
+    init_at_random_ep_len: Flag = True
+    """Start training with each env's time-out counter at a random point of the time limit (rsl-rl's ``learn``
+    argument, as Isaac Lab's train script sets it): time-outs, hence resets from random states, spread over every
+    iteration instead of arriving all at once. Reported episode lengths stay the steps each episode really ran."""
+    save_interval: Count = 50
+    """Write a checkpoint every this many iterations (and always at the end)."""
+    experiment_name: Name | None = None
+    """Folder under <log_dir>/rsl_rl that groups the runs of one experiment; None: the task's name."""
+    run_name: Annotated[str, tyro.conf.arg(aliases=("--run-name",))] = ""
+    """Suffix of the run folder name (empty: the timestamp alone)."""
+    logger: Annotated[MetricsLogger, tyro.conf.arg(aliases=("--logger",))] = "tensorboard"
+    """Metrics writer: 'tensorboard', 'wandb' (needs the wandb package) or 'none' (checkpoints and summary only)."""
+    wandb_project: Name = "cartpole_warp"
+    """Weights & Biases project when logger is 'wandb'."""
+    cuda_graph: Flag = True
+    """With SyncFreePPO on a GPU: capture one iteration's rollout and its update (with its NCCL all-reduces under
+    torchrun) as CUDA graphs after the first iterations and replay them, one launch each instead of thousands.
+    Ignored on the CPU, with rsl-rl's PPO (whose sampling and update read the device) and with console 'rsl_rl'
+    (whose per-step bookkeeping does)."""
+    torch_compile_mode: Literal["default", "max-autotune-no-cudagraphs"] | None = None
+    """rsl-rl's torch.compile of the actor and critic (None: not compiled)."""
+    algorithm: PpoConfig = field(default_factory=PpoConfig)
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    critic: ModelConfig = field(default_factory=ModelConfig)
