@@ -139,7 +139,12 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
         require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
         require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
+        envs = peek(argv, num_envs=None, **{"env.num_envs": None})
+        require(envs.num_envs is None and getattr(envs, "env.num_envs") is None,
+                "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs")
         axes = args.grid(cfg.task_spec.env_class.joint_roles)
+        names = [axis.name for axis in axes]
+        require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
         require(all(axis.factors and min(axis.factors) >= 0 for axis in axes),
                 "every --grid-*-factors list needs factors >= 0")
         cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes

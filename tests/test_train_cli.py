@@ -156,13 +156,18 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     assert heatmap.format == "PNG" and heatmap.size[0] > 200 and heatmap.size[1] > 200
 
 
-def test_play_eval_refuses_unknown_parameters(trained, run_main):
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--grid-x", "pole_length_m"], "robustness axis 'pole_length_m' is not a settable physical parameter"),
+    (["--grid-x", "actuator_scale"], "each grid axis needs its own parameter, got actuator_scale, actuator_scale"),
+    (["--num-envs", "16"], "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs"),
+    (["--env.num-envs", "16"], "drop --num-envs"),
+])
+def test_play_eval_refuses_what_it_cannot_honour(trained, run_main, flags, message):
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
-    result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-x",
-                        "pole_length_m", "--grid-episodes", "1")
-    assert result.returncode != 0
-    assert "robustness axis 'pole_length_m' is not a settable physical parameter" in result.stderr
+    result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-episodes", "1",
+                      *flags)
+    assert result.returncode != 0 and message in result.stderr, result.stderr
 
 
 def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained, run_main):
