@@ -21,7 +21,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Generic, Literal
+from typing import TYPE_CHECKING, Generic, Literal
 
 from . import tasks
 from .cli import asks_help, clean_errors, parse, peek, quiet_libraries
@@ -30,6 +30,9 @@ from .files import write_text
 from .rl.config import TrainConfig, checked, train_config
 from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_run, load_config, play_checkpoint
 from .scene import StageError
+
+if TYPE_CHECKING:
+    from .evaluation import Policy  # torch: imported when a run needs it
 
 Agent = Literal["trained", "zero", "random"]
 Viewer = Literal["window", "viser", "none"]
@@ -179,66 +182,79 @@ def play(argv: list[str]) -> int:
             check_viewer()
         import torch
 
-        from .evaluation import random_policy, rollout, whole_episode_steps, zero_policy
-
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
-        task = cfg.task_spec
-        env = task.env_class(cfg.env)
-        if checkpoint is not None:
-            from .rl.runner import CartpoleRunner
-            from .wrappers.rsl_rl import RslRlVecEnv
-
-            runner = CartpoleRunner(RslRlVecEnv(env), cfg, None)
-            runner.load(str(checkpoint), load_cfg={"actor": True})
-            policy = runner.policy()
-            print(f"policy: {checkpoint}")
-            if args.export:
-                for path in runner.export(checkpoint.parent / EXPORT_DIR):
-                    print(f"exported {path}")
-        else:
-            policy = (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
-                      else random_policy(env.num_actions, cfg.env.seed))
-            print(f"policy: {args.agent}")
+        env = cfg.task_spec.env_class(cfg.env)
+        policy = load_policy(args, cfg, env, checkpoint)
         if args.eval:
             return evaluate_robustness(args, cfg, env, policy, checkpoint)
-        if not args.headless and args.viewer == "viser":
-            from .viz.web import view_in_browser
+        if args.headless:
+            return play_headless(args, cfg, env, policy, checkpoint)
+        return view(args, env, policy)
 
-            steps = view_in_browser(env, policy, args.host, args.port, args.viewer_envs, max_steps=args.steps,
-                                    on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True))
-            print(f"viewer closed after {steps} env steps")
-            return 0
-        if not args.headless:
-            from .viz.viewer import view_interactively
 
-            steps = view_interactively(env, policy, max_steps=args.steps)
-            print(f"viewer closed after {steps} env steps")
-            return 0
-        from .viz.record import VIDEO_EXTRA, Recorder, video_available
+def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) -> Policy:
+    """The checkpoint's deterministic policy (exported first with --export), or the zero or random one."""
+    from .evaluation import random_policy, zero_policy
 
-        has_limit = cfg.env.task.episode_length_s is not None
-        steps = args.steps or whole_episode_steps(env)
-        output = output_dir(args, checkpoint)
-        recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length)
-        stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
-        pictures = recorder.close()
-        limit = (f"the {cfg.env.task.episode_length_s:g} s time limit" if has_limit and steps >= env.max_episode_length
-                 else f"the {steps}-step cap")
-        solved = task.solved(stats)
-        print(f"{cfg.task}: {stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
-              f"mean return {stats.mean_return:.2f}, mean length {stats.mean_episode_length:.1f} steps "
-              f"({stats.mean_episode_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "
-              f"reached {limit}: {stats.time_limit_fraction:.1%}; {task.play_metric} "
-              f"{getattr(stats, task.play_metric):.3f}: {'solved' if solved else 'not solved'}")
-        record = {"task": cfg.task, "agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None,
-                  "num_envs": env.num_envs, "steps": steps,
-                  **dataclasses.asdict(stats), "play_metric": task.play_metric,
-                  "play_value": getattr(stats, task.play_metric), "solved": solved}
-        result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
-        print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
-        if not video_available():
-            print(f"no MP4: {VIDEO_EXTRA} adds it")
+    if checkpoint is None:
+        print(f"policy: {args.agent}")
+        return (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
+                else random_policy(env.num_actions, cfg.env.seed))
+    from .rl.runner import CartpoleRunner
+    from .wrappers.rsl_rl import RslRlVecEnv
+
+    runner = CartpoleRunner(RslRlVecEnv(env), cfg, None)
+    runner.load(str(checkpoint), load_cfg={"actor": True})
+    print(f"policy: {checkpoint}")
+    if args.export:
+        for path in runner.export(checkpoint.parent / EXPORT_DIR):
+            print(f"exported {path}")
+    return runner.policy()
+
+
+def view(args: PlayArgs, env, policy: Policy) -> int:
+    """The policy in Newton's window or, with --viewer viser, in a browser, until the viewer closes."""
+    if args.viewer == "viser":
+        from .viz.web import view_in_browser
+
+        steps = view_in_browser(env, policy, args.host, args.port, args.viewer_envs, max_steps=args.steps,
+                                on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True))
+    else:
+        from .viz.viewer import view_interactively
+
+        steps = view_interactively(env, policy, max_steps=args.steps)
+    print(f"viewer closed after {steps} env steps")
+    return 0
+
+
+def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpoint: Path | None) -> int:
+    """Each env's first episode, recorded (GIF, USD, MP4 with the video extra); the statistics printed and written
+    to result.json."""
+    from .evaluation import rollout, whole_episode_steps
+    from .viz.record import VIDEO_EXTRA, Recorder, video_available
+
+    task = cfg.task_spec
+    steps = args.steps or whole_episode_steps(env)
+    output = output_dir(args, checkpoint)
+    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length)
+    stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
+    pictures = recorder.close()
+    at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length
+    limit = f"the {cfg.env.task.episode_length_s:g} s time limit" if at_limit else f"the {steps}-step cap"
+    solved = task.solved(stats)
+    print(f"{cfg.task}: {stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
+          f"mean return {stats.mean_return:.2f}, mean length {stats.mean_episode_length:.1f} steps "
+          f"({stats.mean_episode_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "
+          f"reached {limit}: {stats.time_limit_fraction:.1%}; {task.play_metric} "
+          f"{getattr(stats, task.play_metric):.3f}: {'solved' if solved else 'not solved'}")
+    record = {"task": cfg.task, "agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None,
+              "num_envs": env.num_envs, "steps": steps, **dataclasses.asdict(stats), "play_metric": task.play_metric,
+              "play_value": getattr(stats, task.play_metric), "solved": solved}
+    result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
+    print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
+    if not video_available():
+        print(f"no MP4: {VIDEO_EXTRA} adds it")
     return 0
 
 
@@ -249,7 +265,7 @@ def output_dir(args: PlayArgs, checkpoint: Path | None) -> Path:
     return checkpoint.parent / PLAY_DIR if checkpoint else Path(args.log_dir) / PLAY_DIR / args.agent
 
 
-def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy, checkpoint: Path | None) -> int:
+def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpoint: Path | None) -> int:
     """--eval: the grid's success rates, printed and written as CSV and PNG."""
     from .robustness import evaluate_grid, format_table, plot_heatmap, write_table
 
