@@ -118,3 +118,13 @@ def test_short_ppo_run_on_vec_env(task):
     obs = venv.reset()
     actions, _ = model.predict(obs, deterministic=True)
     assert actions.shape == (16, 1)
+
+
+def test_without_the_sb3_extra_the_import_says_what_to_install(monkeypatch):
+    import importlib
+    import sys
+
+    monkeypatch.setitem(sys.modules, "stable_baselines3.common.vec_env", None)  # as if not installed
+    monkeypatch.delitem(sys.modules, "cartpole_warp.wrappers.sb3")
+    with pytest.raises(ModuleNotFoundError, match=r"needs the sb3 extra .*pip install 'cartpole_warp\[sb3\]'"):
+        importlib.import_module("cartpole_warp.wrappers.sb3")

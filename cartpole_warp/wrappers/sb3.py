@@ -16,7 +16,12 @@ import time
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.vec_env import VecEnv
+
+try:
+    from stable_baselines3.common.vec_env import VecEnv
+except ModuleNotFoundError as err:
+    raise ModuleNotFoundError(f"cartpole_warp.wrappers.sb3 needs the sb3 extra ({err.name} is missing): "
+                              "pip install 'cartpole_warp[sb3]'", name=err.name) from None
 
 from ..env import BatchedEnv
 from .gymnasium import action_space, actions_tensor, env_frames, observation_space, render_metadata
