@@ -72,7 +72,8 @@ class PlayArgs(Generic[TaskT]):
     export: bool = False
     """Write <run>/exported/policy.onnx and policy.pt."""
     steps: int | None = None
-    """Env steps to run (default: the time limit, or 1000 without one; in the viewer: until its window closes)."""
+    """Env steps to run (default: the time limit, or 1000 without one; in the viewer: until its window closes); fewer
+    than a whole episode's are not judged 'solved' or not."""
     video_length: int | None = None
     """Env steps of env 0 in the MP4 (default: all the steps run); its frame rate is one frame per env step."""
     output: Path | None = None
@@ -242,15 +243,19 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     pictures = recorder.close()
     at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length
     limit = f"the {cfg.env.task.episode_length_s:g} s time limit" if at_limit else f"the {steps}-step cap"
-    solved = task.solved(stats)
+    whole = steps >= whole_episode_steps(env)
+    solved = task.solved(stats) if whole else None  # episodes cut by --steps say nothing of the task's rule
+    verdict = ("solved" if solved else "not solved") if whole else (
+        f"not judged: --steps {steps} ends the episodes before their {whole_episode_steps(env)} steps")
+    metric = getattr(stats, task.play_metric)
     print(f"{cfg.task}: {stats.episodes} episodes ({env.num_envs} envs, first episode each, {steps} steps): "
           f"mean return {stats.mean_return:.2f}, mean length {stats.mean_episode_length:.1f} steps "
           f"({stats.mean_episode_length * env.env_dt:.2f} s), reward/step {stats.mean_reward_per_step:.3f}, "
           f"reached {limit}: {stats.time_limit_fraction:.1%}; {task.play_metric} "
-          f"{getattr(stats, task.play_metric):.3f}: {'solved' if solved else 'not solved'}")
+          f"{'-' if metric is None else f'{metric:.3f}'}: {verdict}")
     record = {"task": cfg.task, "agent": args.agent, "checkpoint": str(checkpoint) if checkpoint else None,
               "num_envs": env.num_envs, "steps": steps, **dataclasses.asdict(stats), "play_metric": task.play_metric,
-              "play_value": getattr(stats, task.play_metric), "solved": solved}
+              "play_value": metric, "solved": solved}
     result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
     print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
     if not video_available():

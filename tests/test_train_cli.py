@@ -178,7 +178,8 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained, run_main):
     assert "cartpole.mp4" in result.stdout
     assert result.returncode == 0, result.stdout + result.stderr
     assert re.search(rf"{task}: 8 episodes .* mean return -?\d+\.\d+, mean length \d+\.\d steps .* reached .*: "
-                     rf"\d+\.\d%; {tasks.get(task).play_metric} -?\d\.\d+: (not )?solved", result.stdout), result.stdout
+                     rf"\d+\.\d%; {tasks.get(task).play_metric} -?\d\.\d+: not judged: --steps 40 ends the "
+                     r"episodes before their \d+ steps", result.stdout), result.stdout
     assert "model_1.pt" in result.stdout
 
     gif = Image.open(run / "play" / "cartpole.gif")
@@ -263,6 +264,16 @@ def test_play_zero_agent_needs_no_checkpoint(tmp_path, run_main):
     import imageio.v2 as imageio
 
     assert sum(1 for _ in imageio.get_reader(tmp_path / "play" / "zero" / "cartpole.mp4")) == 25
+
+
+def test_play_does_not_judge_episodes_cut_short_by_steps(tmp_path, run_main):
+    """An unpushed pole survives 5 steps: that is no reason to call it solved."""
+    result = run_main("play", "--agent", "zero", "--headless", "--log-dir", tmp_path, "--num-envs", "4",
+                      "--steps", "5")
+    assert result.returncode == 0, result.stderr
+    record = json.loads((tmp_path / "play" / "zero" / "result.json").read_text())
+    assert record["time_limit_fraction"] == 1.0 and record["solved"] is None, record
+    assert "not judged: --steps 5 ends the episodes before their 600 steps" in result.stdout
 
 
 def test_help_documents_flags_and_config_fields(run_main):
