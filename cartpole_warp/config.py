@@ -33,6 +33,8 @@ MAX_NUM_ENVS = 2**24
 """The most envs one process builds."""
 BYTES_PER_ENV = 7_000
 """Peak memory per env while building the scene (measured on the CPU with 262,144 envs: ~6.9 kB)."""
+MAX_ACTION_DELAY_STEPS = 1000
+"""The longest action delay (env steps) a config may ask for: each env keeps that many past actions."""
 
 
 def _numpy_scalar(value: Any) -> Any:
@@ -138,8 +140,9 @@ class RandomizationConfig:
     """Factor on the task's joint forces (the actuator strength; 1 is the task's own)."""
     gravity_m_s2: Range | None = None
     """Gravity's magnitude (m/s^2), along the stage's gravity direction."""
-    action_delay_steps: NonNegativeInt = 0
-    """Each env applies the action of d env steps ago, d drawn from {0, ..., this}; no force before the first."""
+    action_delay_steps: Annotated[NonNegativeInt, pydantic.Field(le=MAX_ACTION_DELAY_STEPS)] = 0
+    """Each env applies the action of d env steps ago, d drawn from {0, ..., this}; no force before the first (each
+    env keeps this many past actions)."""
     obs_noise_std: NonNegative = 0.0
     """Standard deviation of the Gaussian noise added to every observation element (in its units)."""
 
@@ -222,6 +225,10 @@ class EnvConfig(Generic[TaskT]):
         require(self.num_envs <= MAX_NUM_ENVS,
                 f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
                 f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
+        history = self.num_envs * (self.randomization.action_delay_steps + 1)
+        require(history < 2**31, f"randomization.action_delay_steps={self.randomization.action_delay_steps} with "
+                                 f"num_envs={self.num_envs:,} is an action history of {history:,} entries "
+                                 f"(~{history * 4 / 1e9:,.1f} GB per action); Warp's arrays hold at most 2**31 - 1")
         require(sim.decimation % sim.mass_matrix_interval == 0,
                 f"sim.mass_matrix_interval={sim.mass_matrix_interval} must divide sim.decimation={sim.decimation}")
         if limit_s is not None:

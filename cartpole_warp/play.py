@@ -149,8 +149,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         axes = args.grid(cfg.task_spec.env_class.joint_roles)
         names = [axis.name for axis in axes]
         require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
-        require(all(axis.factors and min(axis.factors) >= 0 for axis in axes),
-                "every --grid-*-factors list needs factors >= 0")
+        require(all(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)) for axis in axes),
+                "every --grid-*-factors list needs finite factors >= 0")
         cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
         delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
         require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")

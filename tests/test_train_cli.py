@@ -161,6 +161,9 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     (["--grid-x", "actuator_scale"], "each grid axis needs its own parameter, got actuator_scale, actuator_scale"),
     (["--num-envs", "16"], "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs"),
     (["--env.num-envs", "16"], "drop --num-envs"),
+    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "inf"], "needs finite factors >= 0"),
+    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "1e12"],
+     "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
 ])
 def test_play_eval_refuses_what_it_cannot_honour(trained, run_main, flags, message):
     log_dir, run, _ = trained
@@ -301,6 +304,10 @@ def test_help_documents_flags_and_config_fields(run_main):
     (["--env.task.reset-dist-m", "-1"], "error: invalid config: env.task.reset_dist_m: Input should be greater than 0"),
     (["--env.task.episode-length-s", "inf"], "task.episode_length_s: Input should be a finite number"),
     (["--agent.algorithm.gamma", "2"], "agent.algorithm.gamma: Input should be less than or equal to 1"),
+    (["--env.randomization.action-delay-steps", "1000000000000"],
+     "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
+    (["--num-envs", "4000000", "--env.randomization.action-delay-steps", "1000"],
+     "error: randomization.action_delay_steps=1000 with num_envs=4,000,000 is an action history of 4,004,000,000"),
     (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
                                       "cart-double-pole-balance, cartpole-swingup"),
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
