@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+import cartpole_warp
+from cartpole_warp.config import ConfigError
+
 TASK = "cart-double-pole-balance"
 STATES = torch.tensor([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.4, 0.3, 0.1, -0.5, -0.15, 0.8],
                        [-1.0, -0.2, -0.2, 0.3, 0.3, -0.4], [2.0, 0.5, 0.3, 0.0, 0.2, 0.0]])
@@ -73,3 +76,14 @@ def test_ends_where_the_tip_falls_below_1_5_m_or_the_cart_leaves(state, reason, 
     final = info["final_obs"].cpu().double().numpy()[0]
     height = math.cos(final[1]) + math.cos(final[1] + final[2])
     assert (height < 1.5) == (reason == "tip_fell") and (abs(final[0]) > 3.0) == (reason == "cart_out_of_range")
+
+
+def test_reset_ranges_that_start_below_the_fall_height_are_refused(make):
+    """Both poles leaning one way as far as the reset range goes: cos 0.5 + cos 1.0 = 1.42 m is below the 1.5 m at
+    which an episode ends, cos 0.45 + cos 0.9 = 1.52 m is not; every reset of the wider accepted range starts above."""
+    with pytest.raises(ConfigError, match=r"reset_pole_angle_rad=0.5 can start an episode with the tip 1.42 m high"):
+        cartpole_warp.tasks.env_config(TASK, task={"reset_pole_angle_rad": 0.5})
+    env = make(512, task_name=TASK, task={"reset_pole_angle_rad": 0.45})
+    obs = env.reset()[0].cpu().double()
+    heights = torch.cos(obs[:, 1]) + torch.cos(obs[:, 1] + obs[:, 2])
+    assert heights.min() >= 1.5 and heights.min() < 1.6, "the range reaches near its limit"

@@ -6,6 +6,7 @@ docstring."""
 from __future__ import annotations
 
 import importlib.util
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,6 +67,12 @@ class DoublePoleConfig(CartpoleConfig):
         require(self.min_tip_height_m < self.pole1_length_m + self.pole2_length_m,
                 f"task.min_tip_height_m={self.min_tip_height_m:g} must be below the upright tip height "
                 f"task.pole1_length_m + task.pole2_length_m={self.pole1_length_m + self.pole2_length_m:g}")
+        spread = self.reset_pole_angle_rad  # lowest tip: both poles leaning the same way as far as the reset goes
+        lowest = (self.pole1_length_m * math.cos(min(spread, math.pi))
+                  + self.pole2_length_m * math.cos(min(2 * spread, math.pi)))
+        require(lowest > self.min_tip_height_m,
+                f"task.reset_pole_angle_rad={spread:g} can start an episode with the tip {lowest:.2f} m high, below "
+                f"task.min_tip_height_m={self.min_tip_height_m:g} (else episodes end as they start)")
 
 
 Params = kernel_params(DoublePoleConfig)
