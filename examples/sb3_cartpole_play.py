@@ -1,11 +1,13 @@
 """The Isaac Sim tutorial's ``cartpole_play.py`` on cartpole_warp: run a policy trained by sb3_cartpole_train.py.
 
-    python examples/sb3_cartpole_play.py [--model-path ppo_cartpole] [--steps 2000]
+    python examples/sb3_cartpole_play.py [--model-path logs/sb3/ppo_cartpole] [--steps 2000]
 
 The tutorial's loop (``model.predict`` then ``env.step``, the env continuing into the next episode by itself),
 for a number of steps instead of until the Isaac Sim window closes; it prints each episode as it ends.
 """
 
+import os
+import sys
 from dataclasses import dataclass
 
 import tyro
@@ -13,7 +15,7 @@ import tyro
 
 @dataclass
 class Args:
-    model_path: str = "ppo_cartpole"
+    model_path: str = "logs/sb3/ppo_cartpole"
     """The model saved by sb3_cartpole_train.py (.zip added by SB3)."""
     steps: int = 2000
     """Env steps to run."""
@@ -24,6 +26,9 @@ class Args:
 
 
 args = tyro.cli(Args, description=__doc__)
+if not any(os.path.isfile(path) for path in (args.model_path, f"{args.model_path}.zip")):
+    sys.exit(f"error: no model at {args.model_path}.zip (relative to {os.getcwd()}): train one with "
+             "python examples/sb3_cartpole_train.py from this folder, or pass --model-path")
 
 # create the environment: the tutorial's cartpole task
 import gymnasium as gym  # noqa: E402

@@ -1,7 +1,7 @@
 """The Isaac Sim tutorial's ``cartpole_train.py`` on cartpole_warp: Stable-Baselines3 PPO on one cartpole.
 
     pip install -e '.[sb3]'
-    python examples/sb3_cartpole_train.py       # 100k steps: ppo_cartpole.zip, TensorBoard logs
+    python examples/sb3_cartpole_train.py       # 100k steps: logs/sb3/ppo_cartpole.zip, TensorBoard logs
     python examples/sb3_cartpole_play.py        # runs the trained policy
 
 The tutorial's script line for line, except: ``VecEnvBase(headless=True)`` + ``CartpoleTask`` become the registered
@@ -19,10 +19,11 @@ import tyro
 class Args:
     total_timesteps: int = 100_000
     """Env steps to train for (the tutorial's model.learn(total_timesteps=100000))."""
-    model_path: str = "ppo_cartpole"
-    """Where the model is saved; SB3 adds .zip (the tutorial's model.save("ppo_cartpole"))."""
-    tensorboard_log: str = "./cartpole_tensorboard"
-    """TensorBoard folder (the tutorial's)."""
+    model_path: str = "logs/sb3/ppo_cartpole"
+    """Where the model is saved; SB3 adds .zip (the tutorial's model.save("ppo_cartpole"), under logs/ like every run
+    here, which git ignores)."""
+    tensorboard_log: str = "logs/sb3/cartpole_tensorboard"
+    """TensorBoard folder (the tutorial's ./cartpole_tensorboard, under logs/)."""
     device: str = "cpu"
     """Torch device of the policy and of the env."""
     seed: int = 0

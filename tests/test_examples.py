@@ -29,9 +29,9 @@ def trained_model(repo, tmp_path_factory):
 def test_train_example_writes_the_tutorials_artefacts(trained_model):
     work, stdout = trained_model
     assert re.search(r"total_timesteps\s*\|\s*2000", stdout), stdout
-    assert (work / "ppo_cartpole.zip").is_file()
-    assert list((work / "cartpole_tensorboard").rglob("events.out.tfevents.*"))
-    model = PPO.load(work / "ppo_cartpole")
+    assert (work / "logs/sb3/ppo_cartpole.zip").is_file()
+    assert list((work / "logs/sb3/cartpole_tensorboard").rglob("events.out.tfevents.*"))
+    model = PPO.load(work / "logs/sb3/ppo_cartpole")
     assert model.num_timesteps == 2000
     assert (model.n_steps, model.batch_size, model.n_epochs, model.gamma) == (1000, 1000, 20, 0.99)
 
@@ -41,7 +41,7 @@ def test_play_example_replays_the_model_like_sb3_on_the_gymnasium_env(repo, trai
     stdout = run_example(repo, "sb3_cartpole_play.py", "--steps", 300, "--seed", 1, cwd=work)
     printed = [(float(r), int(n)) for r, n in re.findall(r"return (-?\d+\.\d), (\d+) steps", stdout)]
 
-    model, env = PPO.load(work / "ppo_cartpole"), CartpoleGymEnv(preset="tutorial", seed=1)
+    model, env = PPO.load(work / "logs/sb3/ppo_cartpole"), CartpoleGymEnv(preset="tutorial", seed=1)
     obs, _ = env.reset()
     expected, ret, length = [], 0.0, 0
     for _ in range(300):
@@ -53,3 +53,11 @@ def test_play_example_replays_the_model_like_sb3_on_the_gymnasium_env(repo, trai
     assert f"still running after {length} steps" in stdout
     assert [n for _, n in printed] == [n for _, n in expected]
     assert [r for r, _ in printed] == pytest.approx([r for r, _ in expected], abs=0.051)
+
+
+def test_play_example_without_a_model_says_how_to_make_one(repo, tmp_path):
+    result = subprocess.run([sys.executable, str(repo / "examples" / "sb3_cartpole_play.py")], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    assert "error: no model at logs/sb3/ppo_cartpole.zip" in result.stderr
+    assert "python examples/sb3_cartpole_train.py" in result.stderr
