@@ -109,7 +109,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     """(arguments, the run's config with the env flags applied, checkpoint or None)."""
     first = peek(argv, task=None, agent="trained", run=None, checkpoint=None, log_dir="logs", experiment_name=None,
                  config=None)
-    task = first.task or tasks.DEFAULT_TASK
+    task = tasks.get(first.task or tasks.DEFAULT_TASK).name
     checkpoint = None
     if first.agent != "trained" or asks_help(argv):
         cfg = train_config(task, first.config)
@@ -119,7 +119,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
             if not checkpoint.is_file():
                 raise RunError(f"checkpoint {checkpoint} not found")
         else:
-            run = Path(first.run) if first.run else latest_run(first.log_dir, first.experiment_name or task)
+            experiment = first.experiment_name or task
+            run = Path(first.run) if first.run else latest_run(first.log_dir, experiment, "--experiment-name")
             checkpoint = play_checkpoint(run)
         saved = checkpoint.parent / CONFIG_FILE
         require(not (saved.is_file() and first.config), f"--config conflicts with the run's saved {saved}; "

@@ -237,6 +237,17 @@ def test_play_without_runs_says_what_to_do(tmp_path, run_main):
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--task", "cartpole-balanse"], "error: unknown task 'cartpole-balanse'; known tasks: cartpole-balance, "),
+    (["--run", "no-such-folder"], "error: no run folder no-such-folder"),
+    (["--experiment-name", "other"], "pick one with --task or --experiment-name)"),
+])
+def test_play_names_what_it_cannot_find_and_its_own_flags(trained, run_main, flags, message):
+    log_dir, _, _ = trained
+    result = run_main("play", "--headless", "--log-dir", log_dir, *flags)
+    assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr, result.stderr
+
+
 @pytest.mark.parametrize("content", [b"not a checkpoint", None])
 def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, content, run_main):
     _, run, _ = trained

@@ -66,6 +66,8 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
 
 def latest_checkpoint(run_dir: Path) -> Path:
     """The checkpoint with the highest iteration in ``run_dir``."""
+    if not Path(run_dir).is_dir():
+        raise RunError(f"no run folder {run_dir}")
     checkpoints = list_checkpoints(run_dir)
     if not checkpoints:
         raise RunError(f"no checkpoint (model_<iteration>.pt) in {run_dir}")
@@ -78,13 +80,14 @@ def play_checkpoint(run_dir: Path) -> Path:
     return best if best.is_file() else latest_checkpoint(run_dir)
 
 
-def latest_run(log_dir: str | Path, experiment: str) -> Path:
-    """The newest run folder (by name, i.e. timestamp) of ``experiment`` that holds a config and a checkpoint."""
+def latest_run(log_dir: str | Path, experiment: str, experiment_flag: str = "--agent.experiment-name") -> Path:
+    """The newest run folder (by name, i.e. timestamp) of ``experiment`` that holds a config and a checkpoint
+    (``experiment_flag``: the program's flag that names another experiment, for the error)."""
     root = experiment_dir(log_dir, experiment)
     runs = sorted(p for p in root.glob("*") if (p / CONFIG_FILE).is_file() and list_checkpoints(p))
     if not runs:
         others = sorted(p.name for p in root.parent.glob("*") if p.is_dir())
-        hint = (f" (experiments there: {', '.join(others)}; pick one with --task or --agent.experiment-name)"
+        hint = (f" (experiments there: {', '.join(others)}; pick one with --task or {experiment_flag})"
                 if others else "")
         raise RunError(f"no checkpoint under {root}{hint}; run train.py first or pass --checkpoint")
     return runs[-1]
