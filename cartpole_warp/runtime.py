@@ -96,6 +96,10 @@ def load_modules(modules: list[wp.Module], device: str, what: str) -> None:
     wp.force_load(device=device, modules=modules, max_workers=max(1, min(len(missing), os.cpu_count() or 1)))
 
 
+NO_CUDA = "device {!r} requested but no CUDA device is available here; use --device cpu"
+"""The error for a CUDA device on a machine without one (``NO_CUDA.format(device)``)."""
+
+
 def resolve_device(device: str) -> str:
     """'cpu' or 'cuda:N' from 'cpu', 'cuda' or 'cuda:N'; ConfigError if it does not exist here."""
     import torch
@@ -107,7 +111,7 @@ def resolve_device(device: str) -> str:
     if not name.startswith("cuda:") or not name[5:].isdigit():
         raise ConfigError(f"unknown device {device!r}; use 'cpu' or 'cuda:N'")
     if not wp.is_cuda_available() or not torch.cuda.is_available():
-        raise ConfigError(f"device {device!r} requested but no CUDA device is available here; use --device cpu")
+        raise ConfigError(NO_CUDA.format(device))
     if int(name[5:]) >= wp.get_cuda_device_count():
         raise ConfigError(f"device {device!r} requested but only {wp.get_cuda_device_count()} CUDA device(s) exist")
     return name

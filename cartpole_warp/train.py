@@ -28,7 +28,7 @@ from .config import ConfigError, TaskT, require
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
-from .runtime import timed
+from .runtime import NO_CUDA, timed
 from .scene import StageError
 
 
@@ -120,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
 
             from .rl.training import Training
 
+        if cfg.env.device != "cpu" and not torch.cuda.is_available():  # before announcing the build
+            raise ConfigError(NO_CUDA.format(cfg.env.device))
         say = print if ranks.writes else (lambda *args, **kwargs: None)
         where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
         say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)

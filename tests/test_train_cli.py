@@ -331,6 +331,14 @@ def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
         assert result.stderr.strip().count("\n") == 0, "one line"
 
 
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error on a machine without a GPU")
+def test_a_missing_gpu_is_refused_before_any_work_is_announced(tmp_path, run_main):
+    result = run_main("train", "--device", "cuda", "--log-dir", tmp_path)
+    assert result.returncode == 2 and "error: device 'cuda' requested but no CUDA device is available here; use " \
+        "--device cpu" in result.stderr, result.stderr
+    assert "building" not in result.stdout and not (tmp_path / "rsl_rl").exists()
+
+
 def test_a_failed_resume_changes_nothing_and_a_failed_start_leaves_no_folder(trained, tmp_path, run_main):
     _, run, _ = trained
     copy = shutil.copytree(run, tmp_path / "run")
