@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
 
             from .rl.training import Training
 
-        if cfg.env.device != "cpu" and not torch.cuda.is_available():  # before announcing the build
+        if not ranks.distributed and cfg.env.device != "cpu" and not torch.cuda.is_available():  # before the build
             raise ConfigError(NO_CUDA.format(cfg.env.device))
         say = print if ranks.writes else (lambda *args, **kwargs: None)
         where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
