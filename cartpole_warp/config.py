@@ -283,22 +283,42 @@ def config_type(cfg: Any) -> Any:
     return cls[tuple(bound[p] for p in cls.__parameters__)]
 
 
+def config_errors(cls: type[Config], data: Any, key_prefix: str = "") -> list[str]:
+    """Every type error and unknown key of ``data`` as a ``cls`` dataclass tree, each naming its key (after
+    ``key_prefix``, where ``data`` sits in a larger file), e.g. ``env.sim.solver: Input should be 'featherstone' or
+    'mujoco'``; empty when ``data`` is valid."""
+    return _validated(cls, data, key_prefix)[1]
+
+
+def _validated(cls: type[Config], data: Any, key_prefix: str) -> tuple[Config | None, list[str]]:
+    try:
+        return pydantic.TypeAdapter(cls).validate_python(data), []
+    except pydantic.ValidationError as err:
+        return None, [_error_line(cls, error, key_prefix) for error in err.errors()]
+
+
+def _error_line(cls: type[Config], error: Any, key_prefix: str) -> str:
+    key = key_prefix + ".".join(str(part) for part in error["loc"])
+    if error["type"] != "unexpected_keyword_argument":
+        return f"{key}: {error['msg']} (got {error['input']!r})"
+    owner = cls
+    for part in error["loc"][:-1]:
+        owner = _field_type(owner, part)
+    known = ", ".join(f.name for f in dataclasses.fields(typing.get_origin(owner) or owner))
+    return f"unknown config key {key!r}; valid keys here: {known}"
+
+
+def raise_config_errors(where: str, errors: list[str]) -> None:
+    """ConfigError naming every one of ``errors`` (``config_errors``) in one line, if there are any."""
+    require(not errors, f"{where}: {' | '.join(errors)}")
+
+
 def from_dict(cls: type[Config], data: Any, where: str = "config", key_prefix: str = "") -> Config:
     """A ``cls`` dataclass tree from nested dicts, checked against the field types; unknown keys are errors.
-    ConfigError names the first bad key (after ``key_prefix``, where ``data`` sits in a larger file), e.g.
-    ``env.sim.solver: Input should be 'featherstone' or 'mujoco'``."""
-    try:
-        return pydantic.TypeAdapter(cls).validate_python(data)
-    except pydantic.ValidationError as err:
-        first = err.errors()[0]
-        key = key_prefix + ".".join(str(part) for part in first["loc"])
-        if first["type"] == "unexpected_keyword_argument":
-            owner = cls
-            for part in first["loc"][:-1]:
-                owner = _field_type(owner, part)
-            known = ", ".join(f.name for f in dataclasses.fields(typing.get_origin(owner) or owner))
-            raise ConfigError(f"{where}: unknown config key {key!r}; valid keys here: {known}") from None
-        raise ConfigError(f"{where}: {key}: {first['msg']} (got {first['input']!r})") from None
+    ConfigError names every bad key (``config_errors``)."""
+    cfg, errors = _validated(cls, data, key_prefix)
+    raise_config_errors(where, errors)
+    return cfg
 
 
 def merge(base: dict, overrides: dict) -> dict:

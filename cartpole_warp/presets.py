@@ -22,9 +22,10 @@ from .config import (
     Flag,
     Name,
     NonNegativeInt,
-    from_dict,
+    config_errors,
     merge,
     overrides_dict,
+    raise_config_errors,
     require,
 )
 from .files import data_path
@@ -84,10 +85,11 @@ def presets() -> list[str]:
     return sorted(p.stem for p in data_path("configs").glob("*.yaml"))
 
 
-def load_preset(preset: str, task: str | None = None) -> dict:
+def load_preset(preset: str, task: str | None = None, env_type: type | None = None) -> dict:
     """The overrides a preset holds, as a nested dict: a name under ``configs/`` or a path to a YAML file. ConfigError
-    for an unknown section or key anywhere but ``env`` (whose keys depend on the task), a bad value, or a preset that
-    names another task than ``task`` (a preset without ``task:`` applies to any)."""
+    naming every unknown section or key and bad value (in ``env`` only where its type ``env_type``, the task's
+    ``EnvConfig[...]``, is given), or a preset that names another task than ``task`` (a preset without ``task:``
+    applies to any)."""
     path = Path(preset)
     if path.suffix not in (".yaml", ".yml"):
         path = data_path("configs", f"{preset}.yaml")
@@ -98,7 +100,10 @@ def load_preset(preset: str, task: str | None = None) -> dict:
     except yaml.YAMLError as err:
         raise ConfigError(f"cannot parse {path}: {err}") from None
     data = overrides_dict(data, f"{path}: expected a mapping at the top level;")
-    from_dict(PresetFile, merge(dataclasses.asdict(PresetFile()), data), f"preset {preset!r}")
+    errors = config_errors(PresetFile, merge(dataclasses.asdict(PresetFile()), data))
+    if env_type is not None and isinstance(data.get("env"), dict):
+        errors += config_errors(env_type, data["env"], key_prefix="env.")
+    raise_config_errors(f"preset {preset!r}", errors)
     require(task is None or data.get("task", task) == task,
             f"preset {preset!r} is for task {data.get('task')!r}, not {task!r}")
     return data

@@ -67,6 +67,18 @@ def test_bad_presets_name_the_key(tmp_path, yaml_text, message):
         train_config(preset=str(preset))
 
 
+def test_a_preset_with_several_bad_keys_names_every_one(tmp_path):
+    preset = tmp_path / "bad.yaml"
+    preset.write_text("env:\n  num_env: 8\n  sim:\n    solver: bullet\nagent:\n  max_iteration: 5\n")
+    for build in (lambda: train_config(preset=str(preset)),
+                  lambda: tasks.env_config("cartpole-balance", str(preset))):
+        with pytest.raises(ConfigError) as err:
+            build()
+        for key in ("'agent.max_iteration'", "'env.num_env'", "env.sim.solver: Input should be"):
+            assert key in str(err.value)
+        assert "\n" not in str(err.value)
+
+
 def test_validate_rejects_mini_batches_that_do_not_divide_the_rollout():
     cfg = train_config()
     cfg.env.num_envs, cfg.agent.num_steps_per_env, cfg.agent.algorithm.num_mini_batches = 3, 3, 4

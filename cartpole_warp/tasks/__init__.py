@@ -126,8 +126,7 @@ def env_config(name: str, preset: str | None = None, **overrides) -> EnvConfig:
     data = merge(dataclasses.asdict(cls(task=task.env_class.config_class())), task.defaults.get("env", {}))
     where = f"task {name!r}" + (f", preset {preset!r}" if preset else "")
     if preset is not None:
-        data = merge(data, overrides_dict(load_preset(preset, name).get("env", {}), f"preset {preset!r}: env:"))
-        from_dict(cls, data, where, key_prefix="env.")  # a bad value named as the preset file writes it
+        data = merge(data, overrides_dict(load_preset(preset, name, cls).get("env", {}), f"preset {preset!r}: env:"))
     data = merge(data, overrides_dict({k: v for k, v in overrides.items() if v is not None}, "overrides:"))
     return from_dict(cls, data, where).validate()
 
