@@ -65,6 +65,44 @@ except SystemExit as stop:
     assert "--num-envz" in result.stderr
 
 
+def test_play_keeps_torch_dynamo_out_of_its_process(tmp_path):
+    """play.py loads the actor alone (no optimizer) and imports tensordict with its compile marks deferred, so
+    Dynamo (seconds of import) stays out; training cannot keep it out: torch's optimizers import it when made."""
+    trained = python(f"from cartpole_warp.train import main; main(['--num-envs', '16', '--max-iterations', '1', "
+                     f"'--logger', 'none', '--log-dir', {str(tmp_path)!r}])")
+    assert trained.returncode == 0, trained.stderr
+    code = f"""
+import sys
+from cartpole_warp.play import main
+main(['--headless', '--log-dir', {str(tmp_path)!r}, '--num-envs', '4', '--steps', '3'])
+print("dynamo", "torch._dynamo" in sys.modules, "tensordict" in sys.modules)
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[-1] == "dynamo False True", result.stdout
+
+
+def test_tensordicts_compile_marks_wait_for_dynamo_and_reach_it_on_request():
+    """Importing tensordict through the library loads no Dynamo; ``mark_for_compile`` (before torch.compile) gives
+    Dynamo every mark tensordict made, as if it had made them with Dynamo loaded."""
+    code = """
+import sys
+from cartpole_warp.wrappers import tensordict_import
+import torch, tensordict.utils
+waiting = list(tensordict_import._waiting)
+print("loaded", "torch._dynamo" in sys.modules, len(waiting))
+tensordict_import.mark_for_compile()
+from torch._dynamo import trace_rules
+print("allowed", all(id(f) in trace_rules._allowed_callable_ids for m, f in waiting if m == "allow_in_graph"))
+print("constant", tensordict.utils._lock_warn._dynamo_marked_constant, torch.compiler.allow_in_graph.__module__)
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    loaded, allowed, constant = result.stdout.splitlines()
+    assert loaded.split()[:2] == ["loaded", "False"] and int(loaded.split()[2]) > 0
+    assert allowed == "allowed True" and constant == "constant True torch.compiler"
+
+
 @pytest.mark.slow
 def test_warmup_fills_an_empty_kernel_cache_so_that_training_compiles_nothing(tmp_path):
     cache = tmp_path / "warp-cache"

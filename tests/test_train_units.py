@@ -325,3 +325,23 @@ def test_phase_clock_times_each_phase_on_its_device(device):
     clock.mark(2)
     first, second = clock.seconds()
     assert 0 < first < second and second > 5 * first
+
+
+def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path):
+    """``load_policy`` (play's, no runner or optimizer) builds the actor as rsl-rl does: the same actions as the
+    runner's policy for the same checkpoint, and a clear error for networks that do not fit."""
+    from cartpole_warp.rl.runner import load_policy
+
+    cfg = train_config()
+    cfg.env.num_envs = 16
+    env = RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0))
+    torch.manual_seed(0)
+    runner = CartpoleRunner(env, cfg, None)
+    runner.learn(2)
+    runner.save(str(tmp_path / "model.pt"))
+    obs = torch.randn(16, env.env.num_obs)
+    with torch.inference_mode():
+        assert torch.equal(load_policy(env, cfg.agent, tmp_path / "model.pt")(obs), runner.policy()(obs))
+    cfg.agent.actor.hidden_dims = [8]
+    with pytest.raises(RunError, match="does not match the configured networks"):
+        load_policy(env, cfg.agent, tmp_path / "model.pt")

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.utils import resolve_class, resolve_obs_groups
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
@@ -33,6 +34,7 @@ from ..statistics import EpisodeStats, EpisodeSummary
 from ..streams import PhaseClock, TorchGraph
 from ..wrappers.rsl_rl import RslRlVecEnv
 from ..wrappers.rsl_rl import mirror as mirror_batch
+from ..wrappers.tensordict_import import mark_for_compile
 from .config import TrainConfig
 from .distributed import joint_stop
 from .ppo import SyncFreeGaussian, SyncFreePPO
@@ -70,6 +72,8 @@ class CartpoleRunner(OnPolicyRunner):
     """
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
+        if cfg.agent.torch_compile_mode is not None:
+            mark_for_compile()
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints its resolved observation sets
             super().__init__(env, to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None),
                              str(log_dir) if log_dir is not None else None, env.device)
@@ -301,17 +305,9 @@ class CartpoleRunner(OnPolicyRunner):
              map_location: str | None = None) -> dict:
         """Load a checkpoint (RunError naming the file if it is unreadable or does not fit) to continue after its
         iteration; return its progress."""
-        try:
-            loaded = torch.load(path, weights_only=False, map_location=map_location or self.device)
-        except Exception as err:  # torch.load raises many types for truncated or foreign files
-            raise RunError(f"cannot read checkpoint {path}: {type(err).__name__}: {err}") from None
-        if not isinstance(loaded, dict) or "actor_state_dict" not in loaded or "iter" not in loaded:
-            raise RunError(f"{path} is not an rsl-rl checkpoint (no actor_state_dict / iter)")
-        try:
+        loaded = read_checkpoint(path, map_location or self.device)
+        with networks_must_fit(path):
             self.alg.load(loaded, load_cfg, strict)
-        except (RuntimeError, KeyError, ValueError) as err:
-            raise RunError(f"checkpoint {path} does not match the configured networks "
-                           f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
         if load_cfg is None or load_cfg.get("iteration"):
             self.current_learning_iteration = loaded["iter"] + 1
         infos = loaded.get("infos") or {}
@@ -320,12 +316,7 @@ class CartpoleRunner(OnPolicyRunner):
 
     def policy(self) -> Policy:
         """The deterministic policy (the Gaussian's mean)."""
-        actor = self.get_inference_policy(self.device)
-
-        def act(obs: torch.Tensor) -> torch.Tensor:
-            return actor(TensorDict({"policy": obs}, batch_size=[obs.shape[0]]))
-
-        return act
+        return deterministic(self.get_inference_policy(self.device))
 
     def export(self, out_dir: Path) -> list[Path]:
         """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' (N, num_obs),
@@ -354,6 +345,51 @@ class CartpoleRunner(OnPolicyRunner):
         finally:
             onnx_logger.setLevel(level)
         return [out_dir / "policy.onnx", out_dir / "policy.pt"]
+
+
+def read_checkpoint(path: str | Path, device: str) -> dict:
+    """A checkpoint's dict on ``device``; RunError naming the file if it is unreadable or not rsl-rl's."""
+    try:
+        loaded = torch.load(path, weights_only=False, map_location=device)
+    except Exception as err:  # torch.load raises many types for truncated or foreign files
+        raise RunError(f"cannot read checkpoint {path}: {type(err).__name__}: {err}") from None
+    if not isinstance(loaded, dict) or "actor_state_dict" not in loaded or "iter" not in loaded:
+        raise RunError(f"{path} is not an rsl-rl checkpoint (no actor_state_dict / iter)")
+    return loaded
+
+
+@contextlib.contextmanager
+def networks_must_fit(path: str | Path):
+    """RunError naming ``path`` when its networks do not load into the configured ones."""
+    try:
+        yield
+    except (RuntimeError, KeyError, ValueError) as err:
+        raise RunError(f"checkpoint {path} does not match the configured networks "
+                       f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
+
+
+def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
+    """The deterministic policy of ``checkpoint``'s actor, built as rsl-rl's PPO builds its actor (its own
+    ``resolve_class`` and ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing
+    needs no ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
+    cfg = to_rsl_rl(agent)
+    actor_class, actor_cfg = resolve_class(cfg["actor"])
+    obs = env.get_observations()
+    with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
+        groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
+    actor = actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
+    with networks_must_fit(checkpoint):
+        actor.load_state_dict(read_checkpoint(checkpoint, env.device)["actor_state_dict"])
+    return deterministic(actor.eval())
+
+
+def deterministic(actor: torch.nn.Module) -> Policy:
+    """``actor`` (rsl-rl's ``MLPModel`` in eval mode: the Gaussian's mean) as a policy of observation tensors."""
+
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        return actor(TensorDict({"policy": obs}, batch_size=[obs.shape[0]]))
+
+    return act
 
 
 def to_rsl_rl(agent: RunnerConfig, mirror: bool = False) -> dict:

@@ -7,6 +7,9 @@
 
 from __future__ import annotations
 
+from . import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
 import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
