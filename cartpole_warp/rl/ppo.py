@@ -13,6 +13,9 @@ the gradient steps of an update can also be captured as one CUDA graph (``cuda_g
 
 from __future__ import annotations
 
+from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
 from itertools import chain
 
 import torch

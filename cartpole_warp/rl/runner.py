@@ -11,6 +11,9 @@ and it adds ``policy`` and ``export``.
 
 from __future__ import annotations
 
+from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
 import contextlib
 import dataclasses
 import io
