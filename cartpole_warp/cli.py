@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
+import textwrap
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -52,9 +55,12 @@ def peek(argv: list[str], **flags: str | None) -> argparse.Namespace:
     return parser.parse_known_args(argv)[0]
 
 
+FULL_HELP = "--help-all"
+
+
 def asks_help(argv: list[str]) -> bool:
-    """Whether ``argv`` asks for --help (then no run needs to exist for the defaults)."""
-    return "-h" in argv or "--help" in argv
+    """Whether ``argv`` asks for --help or --help-all (then no run needs to exist for the defaults)."""
+    return "-h" in argv or "--help" in argv or FULL_HELP in argv
 
 
 def with_default_value(argv: list[str], flag: str, value: str) -> list[str]:
@@ -70,8 +76,40 @@ def with_default_value(argv: list[str], flag: str, value: str) -> list[str]:
 
 def parse(cls: type[Args], default: Args, argv: list[str], description: str) -> Args:
     """tyro's parse of ``argv`` into ``cls``, starting from ``default``; bad or unknown flags exit with code 2 and
-    tyro's message naming the flag."""
+    tyro's message naming the flag. ``--help`` prints ``short_help``, ``--help-all`` tyro's help of every flag."""
+    if FULL_HELP in argv:
+        argv = ["--help"]
+    elif "-h" in argv or "--help" in argv:
+        print(short_help(cls, default, description))
+        sys.exit(0)
     return tyro.cli(cls, default=default, args=argv, description=description)
+
+
+def short_help(cls: type[Args], default: Args, description: str, width: int = 100) -> str:
+    """``description``, then the flags of the top level and their short aliases (``--num-envs`` for
+    ``--env.num-envs``): each with the first sentence of its help and its default, from the parser tyro builds
+    for ``--help-all`` (which lists the other flags, every config field, in groups)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # tyro 1.0 deprecates get_parser, not yet removed
+        parser = tyro.extras.get_parser(cls, default=default)
+    common, other = [], 0
+    for action in parser._actions:
+        flags = [flag for flag in action.option_strings if flag.startswith("--")]
+        short = [flag for flag in flags if "." not in flag]
+        if "-h" in action.option_strings:
+            continue
+        if not short or action.help == argparse.SUPPRESS:
+            other += bool(flags)
+            continue
+        metavar = f" {action.metavar}" if action.metavar and action.nargs != 0 else ""
+        text = " ".join((action.help or "").split())
+        default_text = text[text.rfind("(default:"):] if "(default:" in text else ""
+        first = re.split(r"(?<=\.)\s", text.removesuffix(default_text).strip(), maxsplit=1)[0]
+        common.append(textwrap.fill(f"{first} {default_text}".strip(), width, initial_indent=" " * 6,
+                                    subsequent_indent=" " * 6))
+        common[-1] = f"  {', '.join(short)}{metavar}\n{common[-1]}"
+    return (f"{description.strip()}\n\noptions (the common ones; {FULL_HELP} lists all {other + len(common)} flags, "
+            f"every config field):\n  -h, --help\n      this help; {FULL_HELP}: every flag\n" + "\n".join(common))
 
 
 @contextmanager

@@ -4,7 +4,7 @@
     python train.py --task cartpole-swingup               # another registered task (listed below)
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point
-    python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help lists them all
+    python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help-all lists them all
     torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096   # 2 GPUs, 4096 envs on each
 
 Each run folder holds config.yaml, model_<iteration>.pt, TensorBoard events, exported/policy.{onnx,pt},
@@ -25,6 +25,7 @@ import tyro
 from . import tasks
 from .cli import asks_help, clean_errors, parse, peek, process_age_s, quiet_libraries, with_default_value
 from .config import ConfigError, TaskT, require
+from .presets import presets
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
@@ -35,9 +36,10 @@ from .scene import StageError
 @dataclass
 class TrainArgs(Generic[TaskT]):
     cfg: Annotated[TrainConfig[TaskT], tyro.conf.arg(name="")]
-    config: str | None = None
-    """Preset to start from: a name under configs/ (default, tutorial, isaac_lab) or a YAML file of overrides.
-    Precedence: dataclass defaults < the task's defaults < preset (or a resumed run's config.yaml) < flags."""
+    config: Annotated[str | None, tyro.conf.arg(help=(
+        f"Preset to start from: a name under configs/ ({', '.join(presets())}) or a YAML file of overrides. "
+        "Precedence: dataclass defaults < the task's defaults < preset (or a resumed run's config.yaml) < flags."
+    ))] = None
     resume: str | None = None
     """Continue a run in place from its last checkpoint: a run folder, or 'latest' (a bare --resume) for the newest
     run under --log-dir. The run's config.yaml is the starting point; flags still override it."""

@@ -290,14 +290,20 @@ def test_play_does_not_judge_episodes_cut_short_by_steps(tmp_path, run_main):
     assert "not judged: --steps 5 ends the episodes before their 600 steps" in result.stdout
 
 
-def test_help_documents_flags_and_config_fields(run_main):
+def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     for script in ("train", "play"):
-        result = run_main(script, "--help")
-        assert result.returncode == 0
-        for flag in ("--num-envs", "--device", "--seed", "--env.task.episode-length-s", "--log-dir", "--checkpoint",
-                     "--task"):
-            assert flag in result.stdout, (script, flag)
-        assert ("--agent.algorithm.entropy-coef" in result.stdout) == (script == "train"), script
+        short, full = run_main(script, "--help"), run_main(script, "--help-all")
+        assert short.returncode == full.returncode == 0
+        for flag in ("--num-envs", "--device", "--seed", "--log-dir", "--checkpoint", "--task", "--help-all"):
+            assert flag in short.stdout, (script, flag)
+        for flag in ("--num-envs", "--device", "--seed", "--env.task.episode-length-s", "--log-dir", "--checkpoint"):
+            assert flag in full.stdout, (script, flag)
+        assert "--env.sim.physics-dt" in full.stdout and "--env.sim.physics-dt" not in short.stdout
+        assert ("--agent.algorithm.entropy-coef" in full.stdout) == (script == "train"), script
+    train_help = run_main("train", "--help").stdout
+    assert len(train_help.splitlines()) <= 80, "train.py --help is for the common flags"
+    presets = sorted(path.stem for path in (Path(__file__).parent.parent / "configs").glob("*.yaml"))
+    assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
 
 @pytest.mark.parametrize("args, message", [

@@ -111,10 +111,10 @@ def leaf_fields(cfg, prefix=""):
 
 
 @pytest.mark.parametrize("task", tasks.names())
-def test_help_lists_every_config_field_with_its_docstring_and_the_tasks(task):
+def test_help_all_lists_every_config_field_with_its_docstring_and_the_tasks(task):
     help_text = io.StringIO()
     with contextlib.redirect_stdout(help_text), pytest.raises(SystemExit) as exit_code:
-        resolve(["--task", task, "--help"])
+        resolve(["--task", task, "--help-all"])
     assert exit_code.value.code == 0
     text = " ".join(help_text.getvalue().replace("│", " ").split())
     fields = list(leaf_fields(train_config(task)))
