@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(NO_CUDA.format(cfg.env.device))
         say = print if ranks.writes else (lambda *args, **kwargs: None)
         where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
-        say(f"building {cfg.env.num_envs} envs on {where} (the first run compiles Warp kernels, ~1 min)...", flush=True)
+        say(f"building {cfg.env.num_envs} envs on {where}...", flush=True)
         training = None
         try:
             training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)

@@ -121,7 +121,8 @@ def test_warmup_fills_an_empty_kernel_cache_so_that_training_compiles_nothing(tm
     assert result.returncode == 0, result.stdout + result.stderr
     loads = [line for line in result.stdout.splitlines() if " load on device " in line]
     assert loads and all(line.endswith("(cached)") for line in loads), "\n".join(loads)
-    assert "compiling Warp kernels" not in result.stdout
+    said = [line for line in result.stdout.splitlines() if "compiles" in line or line.startswith("compiling")]
+    assert not said, f"a warm run says nothing of compiling: {said}"
     assert sorted(p.name for p in (cache / os.listdir(cache)[0]).iterdir()) == filled, "nothing new in the cache"
 
 
