@@ -147,8 +147,10 @@ def main(argv: list[str] | None = None) -> int:
                 torch.distributed.destroy_process_group()
     if summary is None:
         return 130 if training.runner.stop_reason == "interrupted" else 0
+    resumed = (f" of training over all its processes, {summary.timing_s['training']:.1f} s in this one"
+               if checkpoint is not None else "")
     print(f"{summary.status}: {summary.iterations} iterations, {summary.env_steps:,} env steps in "
-          f"{summary.train_time_s:.1f} s ({summary.env_steps_per_s:,} steps/s)")
+          f"{summary.train_time_s:.1f} s{resumed} ({summary.env_steps_per_s:,} steps/s)")
     if summary.solved_at:
         solved = summary.solved_at
         print(f"solved at iteration {solved['iterations']} after {solved['train_time_s']:.1f} s "

@@ -390,6 +390,11 @@ def test_sigint_saves_and_resume_continues(tmp_path):
     steps_per_env = yaml.safe_load((run / "config.yaml").read_text())["agent"]["num_steps_per_env"]
     assert summary["iterations"] == done + 2 and summary["env_steps"] == (done + 2) * 64 * steps_per_env
     assert torch.load(run / f"model_{done + 1}.pt", weights_only=False)["iter"] == done + 1
+    assert re.search(r" s of training over all its processes, [0-9.]+ s in this one \(", result.stdout), result.stdout
+    phases = re.search(r"^seconds: (.*); ([0-9.]+) since the process started$", result.stdout, re.M)
+    spent = sum(float(phase.rsplit(" ", 1)[1]) for phase in phases.group(1).split(", "))
+    assert spent <= float(phases.group(2)) + 0.2, "the phases are this process's seconds"
+    assert summary["timing_s"]["training"] < summary["train_time_s"], "training in this process, not all of them"
 
 
 def train_to_solved_and_play(tmp_path, task: str, *flags) -> tuple[dict, dict]:

@@ -95,6 +95,7 @@ class Training:
         evaluation ran, else the last), draw the learning curve and write
         ``summary.json``, and return it (None in the processes that do not write)."""
         previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
         try:
             self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
         finally:
@@ -104,7 +105,7 @@ class Training:
         if not self.ranks.writes:
             return None
         progress = self.runner.progress
-        self.timing_s["training"] = progress.train_time_s
+        self.timing_s["training"] = progress.train_time_s - trained_before_s
         with timed(self.timing_s, "export"):
             exports = []
             if progress.iterations:  # play's policy: a policy can get worse after its best evaluation
