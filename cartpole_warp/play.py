@@ -69,6 +69,9 @@ class PlayArgs(Generic[TaskT]):
     """--viewer viser: the page's port."""
     viewer_envs: int = 16
     """--viewer viser: how many envs the page shows, in a grid."""
+    record_viser: bool = False
+    """--headless: also write <output>/cartpole.viser, a replay for viser's static player (the viser extra; Newton's
+    viser viewer records only while it serves, so a server runs on a free local port meanwhile)."""
     export: bool = False
     """Write <run>/exported/policy.onnx and policy.pt."""
     steps: int | None = None
@@ -240,7 +243,7 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     task = cfg.task_spec
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
-    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length)
+    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length, viser=args.record_viser)
     stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
     pictures = recorder.close()
     at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length

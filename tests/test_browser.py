@@ -149,18 +149,30 @@ def test_train_serves_its_envs_and_exits_cleanly(repo, tmp_path, browser):
     assert port_is_free(port)
 
 
+def test_headless_play_starts_no_viser_server_unless_asked(repo, tmp_path):
+    """With the viser extra installed, play.py --headless alone imports no viser (so serves nothing and prints no
+    server box) and writes no .viser."""
+    code = "import sys; from cartpole_warp.play import main; main(sys.argv[1:]); print('viser' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code, "--agent", "zero", "--headless", "--num-envs", "4", "--steps",
+                             "3", "--output", str(tmp_path)], cwd=repo, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0 and result.stdout.splitlines()[-1] == "False", result.stdout + result.stderr
+    assert all("viser" not in line.lower() for line in result.stdout.splitlines()[:-1]), result.stdout
+    assert not (tmp_path / "cartpole.viser").exists() and (tmp_path / "cartpole.gif").exists()
+
+
 def test_headless_play_records_for_the_static_player(repo, tmp_path, browser):
-    """play.py --headless writes cartpole.viser beside the GIF, for every task; ``python -m cartpole_warp.viz.web``
-    serves it in viser's player, which loads it without console errors."""
+    """play.py --headless --record-viser writes cartpole.viser beside the GIF, for every task; ``python -m
+    cartpole_warp.viz.web`` serves it in viser's player, which loads it without console errors."""
     from cartpole_warp import tasks
 
     for task in tasks.names():
         out = tmp_path / task
         result = subprocess.run([sys.executable, str(repo / "play.py"), "--agent", "zero", "--headless", "--task",
-                                 task, "--num-envs", "4", "--steps", "40", "--output", str(out)], cwd=repo,
-                                capture_output=True, text=True, timeout=300)
+                                 task, "--num-envs", "4", "--steps", "40", "--output", str(out), "--record-viser"],
+                                cwd=repo, capture_output=True, text=True, timeout=300)
         assert result.returncode == 0, result.stdout + result.stderr
         assert (out / "cartpole.viser").stat().st_size > 1000
+
     port = free_port()
     process = subprocess.Popen([sys.executable, "-m", "cartpole_warp.viz.web",
                                 str(tmp_path / tasks.DEFAULT_TASK / "cartpole.viser"), str(port)], cwd=repo,

@@ -1,5 +1,5 @@
 """Recording env 0 of a rollout: a GIF side view, an MP4 of the same pictures, a time-sampled USD stage (Newton's
-``ViewerUSD``) and, with the viser extra, a ``.viser`` recording for the browser.
+``ViewerUSD``) and, where asked (the viser extra), a ``.viser`` recording for the browser.
 
     recorder = Recorder(env.scene, env.env_dt, out_dir)
     rollout(env, policy, steps, on_step=recorder)
@@ -44,9 +44,10 @@ def write_mp4(path: Path, images: list[np.ndarray], fps: float) -> Path:
 
 class Recorder:
     """Called once per env step (``recorder(step)``), it records the bodies of env 0 of ``scene``.
-    ``video_length``: env steps in the MP4 (None: all)."""
+    ``video_length``: env steps in the MP4 (None: all); ``viser``: also a ``.viser`` recording."""
 
-    def __init__(self, scene: Scene, env_dt: float, out_dir: Path, video_length: int | None = None):
+    def __init__(self, scene: Scene, env_dt: float, out_dir: Path, video_length: int | None = None,
+                 viser: bool = False):
         self.scene, self.env_dt, self.out_dir, self.video_length = scene, env_dt, Path(out_dir), video_length
         self.geometry = Geometry(scene.model)
         self.frames: list[np.ndarray] = []
@@ -59,7 +60,7 @@ class Recorder:
         self.usd.set_model(scene.model)
         self.usd.set_visible_worlds([0])
         self.viser = None
-        if importlib.util.find_spec("viser") is not None:
+        if viser:
             from .web import Recording
 
             self.viser = Recording(scene, self.out_dir / "cartpole.viser", env_dt)
@@ -74,8 +75,8 @@ class Recorder:
             self.viser(step)
 
     def close(self) -> list[Path]:
-        """Write the GIF, the MP4 (when the video extra is installed), the USD stage and the viser recording (when
-        the viser extra is); return their paths."""
+        """Write the GIF, the MP4 (when the video extra is installed), the USD stage and the viser recording (where
+        asked); return their paths."""
         self.usd.close()
         usd = self.out_dir / "cartpole.usda"
         os.replace(self._usd_tmp, usd)
