@@ -1,6 +1,7 @@
 """The built wheel works away from the repository: it carries the stage and the presets, and its env and trainer run
 from a folder outside the checkout in a fresh venv that already has the dependencies."""
 
+import importlib.metadata
 import json
 import shutil
 import site
@@ -9,6 +10,7 @@ import sys
 import zipfile
 
 import pytest
+from packaging.requirements import Requirement
 
 
 @pytest.mark.slow
@@ -75,3 +77,24 @@ def test_the_library_changes_no_global_setting_and_hides_the_no_driver_warning(t
     result = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0 and "stepped" in result.stdout, result.stdout + result.stderr
     assert "Could not find or load the NVIDIA CUDA driver" not in result.stdout + result.stderr
+
+
+
+def requirements(package: str, extra: str = "") -> list[Requirement]:
+    """``package``'s installed requirements: its core ones, or (``extra``) those that only that extra adds."""
+    found = [Requirement(text) for text in importlib.metadata.requires(package) or []]
+
+    def wanted(requirement, name):
+        return requirement.marker is None or requirement.marker.evaluate({"extra": name})
+
+    return [r for r in found if wanted(r, extra) and not (extra and wanted(r, ""))]
+
+
+def test_the_video_extra_caps_no_core_dependency_below_its_own_range():
+    """``pip install '.[video]'`` (play.py's MP4s) downgrades nothing: no package it brings caps pillow below the
+    newest release the core allows (moviepy 2.2, which gymnasium's RecordVideo needs, does: it is ``[gym-video]``)."""
+    pillow = next(r for r in requirements("cartpole_warp") if r.name == "pillow")
+    newest_allowed = max(v for v in ("11.3", "12.0", "13.0") if v in pillow.specifier)
+    capped = [f"{r.name}: {inner}" for r in requirements("cartpole_warp", "video") for inner in requirements(r.name)
+              if inner.name == "pillow" and newest_allowed not in inner.specifier]
+    assert capped == []

@@ -24,8 +24,7 @@ VIDEO_EXTRA = "pip install 'cartpole_warp[video]'"
 
 
 def video_available() -> bool:
-    """Whether MP4s can be written: imageio with its ffmpeg wheel (the video extra, which also brings moviepy for
-    gymnasium's RecordVideo) is installed."""
+    """Whether MP4s can be written: imageio with its ffmpeg wheel (the video extra) is installed."""
     return importlib.util.find_spec("imageio") is not None and importlib.util.find_spec("imageio_ffmpeg") is not None
 
 
