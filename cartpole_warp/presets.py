@@ -62,8 +62,9 @@ class RunSettings:
     """Root folder of all runs; a run lives in <log_dir>/rsl_rl/<agent.experiment_name>/<timestamp>[_<run_name>]."""
     console: Console = "compact"
     """Console output per iteration: 'compact' (one line) or 'rsl_rl' (rsl-rl's block)."""
-    stop_when_solved: Flag = False
-    """End training at the first evaluation that meets the task's solved rule (``eval``)."""
+    stop_when_solved: Flag = True
+    """End training at the first evaluation that meets the task's solved rule (``eval``); --no-stop-when-solved
+    trains all of --max-iterations."""
     eval: EvalConfig = field(default_factory=EvalConfig)
     torch_threads: NonNegativeInt = 1
     """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the

@@ -24,9 +24,11 @@ FAILING = EpisodeSummary(100, 10.0, 20.0, 0.5, 0.0)
 
 def make_training(tmp_path, logger="none", **eval_settings) -> Training:
     """A balance run of 64 training envs and 32 evaluation envs on the test device that barely learns (fixed learning
-    rate of 1e-12): its policy stays the one the test writes into the actor."""
+    rate of 1e-12): its policy stays the one the test writes into the actor. It trains all its iterations unless a
+    test sets ``stop_when_solved``."""
     cfg = train_config("cartpole-balance")
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 64, DEVICE, logger, str(tmp_path)
+    cfg.stop_when_solved = False
     cfg.agent.algorithm.schedule, cfg.agent.algorithm.learning_rate = "fixed", 1e-12
     for name, value in {"num_envs": 32, **eval_settings}.items():
         setattr(cfg.eval, name, value)
@@ -66,11 +68,11 @@ def test_training_episodes_that_meet_the_rule_do_not_make_a_failing_policy_solve
     assert training.runner.progress.solved_at is None and training.runner.stop_reason is None
 
 
-def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_whatever_its_noise_shows(tmp_path):
+def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_and_training_stops_there_by_default(tmp_path):
     training = make_training(tmp_path, logger="tensorboard", min_interval=1, max_interval=3)
     set_policy_mean(training, BALANCING_GAINS, std=5.0)
     training_episodes(training, FAILING)
-    training.runner.train_cfg.stop_when_solved = True
+    training.runner.train_cfg.stop_when_solved = train_config().stop_when_solved  # train.py's default: stop
     training.runner.learn(10)
     history = training.runner.progress.history
     assert ["evaluation" in h for h in history] == [False, False, True], "no candidate: the third iteration looks"

@@ -345,3 +345,18 @@ def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path)
     cfg.agent.actor.hidden_dims = [8]
     with pytest.raises(RunError, match="does not match the configured networks"):
         load_policy(env, cfg.agent, tmp_path / "model.pt")
+
+
+def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(capsys):
+    """A balancing policy ends no episode for many iterations; its console row says the envs are still running and
+    for how long, not only that nothing finished."""
+    cfg = train_config()
+    cfg.env.num_envs, cfg.agent.num_steps_per_env = 16, 2
+    torch.manual_seed(0)
+    runner = CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
+    runner.learn(2)
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
+    dt = cfg.env.sim.env_dt
+    assert [row.split(" | ")[1].strip() for row in rows] == [
+        f"no episode ended; 16 running, {2 * dt:5.2f} s in on average",
+        f"no episode ended; 16 running, {4 * dt:5.2f} s in on average"], rows

@@ -286,8 +286,9 @@ class CartpoleRunner(OnPolicyRunner):
             length = stats.mean_episode_length
             episodes = (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {length * dt:5.2f} s "
                         f"({length:5.0f}/{limit}) | {stats.episodes:5d} ep")
-        else:
-            episodes = "no episode finished this iteration".ljust(60)
+        else:  # a policy that balances ends no episode for many iterations: say how long they have been running
+            running_s = self.env.episode_length_buf.float().mean().item() * self.train_cfg.env.sim.env_dt
+            episodes = f"no episode ended; {self.env.num_envs} running, {running_s:5.2f} s in on average".ljust(60)
         width = len(str(self._end_iteration))
         line = (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
                 f" | ETA {format_duration(eta_s)}")

@@ -61,9 +61,9 @@ class SweepArgs:
     """Also run play.py --headless on each result (its best policy; the run's eval.num_envs envs, one time limit)."""
     play_last: bool = False
     """With --play: play each run's last checkpoint instead of its best (does a run keep what it learned?)."""
-    stop_when_solved: bool = False
-    """End each run when solved (quicker to screen settings); by default runs go on to max_iterations, as
-    train.py does, and play judges the best policy the run kept."""
+    stop_when_solved: bool = True
+    """End each run when solved, as train.py does by default; --no-stop-when-solved runs each to max_iterations
+    (play then judges the best policy the run kept, or with --play-last its last)."""
     log_dir: Path | None = None
     """Keep the runs here (default: a temporary folder)."""
     fresh_process: bool = False
@@ -127,7 +127,7 @@ def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
              "--num-envs", str(args.num_envs),
              *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
              "--logger", "none", "--log-dir", str(log_dir),
-             *(["--stop-when-solved"] if args.stop_when_solved else [])]
+             "--stop-when-solved" if args.stop_when_solved else "--no-stop-when-solved"]
     done = run_script("train", flags, args.fresh_process)
     if done.returncode != 0:
         return RunResult(variant, seed, None, None, None,
