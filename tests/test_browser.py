@@ -138,8 +138,8 @@ def test_train_serves_its_envs_and_exits_cleanly(repo, tmp_path, browser):
     outlast the page's load in headless Chromium; with 40 (~2 s) the run could end before the page's WebSocket
     connected ("ERR_CONNECTION_REFUSED")."""
     port = free_port()
-    process, url = start(repo, "train.py", "--num-envs", 64, "--max-iterations", 200, "--viewer", "viser", "--port",
-                         port, "--log-dir", tmp_path)
+    process, url = start(repo, "train.py", "--num-envs", 64, "--max-iterations", 200, "--no-stop-when-solved",
+                         "--viewer", "viser", "--port", port, "--log-dir", tmp_path)
     open_page(browser, url)
     errors = console_errors(browser)
     output = process.communicate(timeout=300)[0]
