@@ -115,3 +115,14 @@ def test_a_short_run_prints_its_iterations_summary_and_where_the_seconds_went(tm
     assert set(timing) == expected and all(seconds >= 0 for seconds in timing.values())
     total = float(re.search(r"seconds: start .*; ([\d.]+) since the process started", result.stdout).group(1))
     assert sum(timing.values()) >= 0.9 * total, f"seconds outside every phase: {timing} of {total}"
+
+
+@pytest.mark.skipif(os.environ.get("CARTPOLE_TEST_DEVICE", "cpu") != "cpu", reason="its GPU tests run, not skip")
+def test_the_test_command_says_why_each_test_skips():
+    """The README's test command (a plain ``python -m pytest``) names every skip and its reason, as the README
+    promises, without ``-rs`` on the command line: here the GPU-only tests of one module on the CPU."""
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_cuda_graph.py",
+                             "-k", "graphed_training"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    skipped = r"SKIPPED \[\d+\] tests/test_cuda_graph.py:\d+: CUDA graphs need a GPU"
+    assert re.search(skipped, result.stdout), result.stdout
