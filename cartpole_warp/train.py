@@ -136,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.viewer == "viser" and ranks.writes:
                 from .viz.web import TrainingView
 
-                view = TrainingView(training.env.env, args.host, args.port, args.viewer_envs)
+                view = TrainingView(training.env.env, args.host, args.port, args.viewer_envs,
+                                    stopping=lambda: training.runner.stop_requested is not None)
                 training.runner.on_iteration = view
                 say(f"watch it at {view.url}", flush=True)
             summary = training.run()

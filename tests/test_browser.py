@@ -185,3 +185,24 @@ def test_headless_play_records_for_the_static_player(repo, tmp_path, browser):
     finally:
         stop(process)
     assert errors == []
+
+
+@pytest.mark.parametrize("paused", [False, True])
+def test_the_pages_pause_holds_training_until_a_stop_is_requested(make, paused):
+    """TrainingView (train.py --viewer viser's ``on_iteration``) returns at once while the page's Pause is unchecked;
+    checked, it holds the training loop, polling the page and the stop request (Ctrl-C), until the stop comes."""
+    from cartpole_warp.statistics import EpisodeSummary
+    from cartpole_warp.viz.web import TrainingView
+
+    polls = []
+
+    def stopping():
+        polls.append(True)
+        return len(polls) >= 3
+
+    view = TrainingView(make(num_envs=4), "127.0.0.1", free_port(), 4, stopping=stopping, paused=paused)
+    try:
+        view(0, EpisodeSummary(4, 1.0, 10.0, 0.1, 0.0))
+    finally:
+        view.close()
+    assert len(polls) == (3 if paused else 0)

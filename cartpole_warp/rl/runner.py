@@ -107,6 +107,11 @@ class CartpoleRunner(OnPolicyRunner):
     def run_dir(self) -> Path | None:
         return Path(self.logger.log_dir) if self.logger.log_dir is not None else None
 
+    @property
+    def stop_requested(self) -> str | None:
+        """The reason of a pending ``request_stop`` (None: none)."""
+        return self._stop_requested
+
     def request_stop(self, reason: str = "interrupted"):
         """End ``learn`` after the iteration in progress (which is saved); in a torchrun job every process stops
         after that same iteration."""

@@ -1,5 +1,6 @@
 """Newton's ``ViewerViser`` on the batched env: a web page served by this process, the first envs in a grid, live
-plots of the reward per step and the episode length, pause and single-step from the page.
+plots of the reward per step and the episode length, pause and single-step from the page (of the env steps in
+play.py, of the iterations while training).
 
 Needs the viser extra: ``pip install 'cartpole_warp[viser]'``. Binds to 127.0.0.1 unless told another host: anyone who
 can reach the host and port sees the page and can pause the run. ``Recording`` writes a ``.viser`` file, and
@@ -46,13 +47,13 @@ class WebViewer:
     """The first ``num_shown`` envs of ``env`` in Newton's viser viewer at ``http://host:port``."""
 
     def __init__(self, env: BatchedEnv, host: str = "127.0.0.1", port: int = 8080, num_shown: int = 16,
-                 title: str = "cartpole_warp"):
+                 title: str = "cartpole_warp", paused: bool = False):
         check_viser()
         from newton.viewer import ViewerViser
 
         self.env = env
         prepare_viewers()
-        self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False)
+        self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False, paused=paused)
         self.url = self.viewer.url
         model = env.scene.model
         self.num_shown = min(num_shown, env.scene.num_envs)
@@ -129,26 +130,35 @@ def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tens
 class TrainingView:
     """``runner.on_iteration``: the training envs in the browser viewer, drawn between iterations while drawing takes
     at most ``1 / (1 + DRAW_RATIO)`` of the wall time (each draw waits ``DRAW_RATIO`` times the last draw's duration);
-    the plots show each drawn iteration's mean reward per step and episode length."""
+    the plots show each drawn iteration's mean reward per step and episode length. The page's Pause holds training
+    after the iteration in progress (its Step lets one more iteration through) until it is unchecked, the server
+    closes or ``stopping()`` says a stop was requested (Ctrl-C)."""
 
     DRAW_RATIO = 20
+    POLL_S = 0.05
+    """How often a paused training looks at the page."""
 
-    def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int):
-        self.viewer = WebViewer(env, host, port, num_shown)
+    def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int,
+                 stopping: Callable[[], bool] = lambda: False, paused: bool = False):
+        self.viewer = WebViewer(env, host, port, num_shown, paused=paused)
         self.url = self.viewer.url
+        self.stopping = stopping
         self._next_draw = 0.0
 
     def __call__(self, iteration: int, summary) -> None:
         started = time.perf_counter()
-        if started < self._next_draw:
-            return
-        scalars = {}
-        if summary.mean_reward_per_step is not None:
-            scalars = {"reward per step": summary.mean_reward_per_step,
-                       "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
-        self.viewer.draw(float(iteration), scalars)
-        took = time.perf_counter() - started
-        self._next_draw = started + took * (1 + self.DRAW_RATIO)
+        paused = not self.viewer.wants_step()
+        if started >= self._next_draw or paused:
+            scalars = {}
+            if summary.mean_reward_per_step is not None:
+                scalars = {"reward per step": summary.mean_reward_per_step,
+                           "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
+            self.viewer.draw(float(iteration), scalars)
+            took = time.perf_counter() - started
+            self._next_draw = started + took * (1 + self.DRAW_RATIO)
+        while paused and self.viewer.is_running() and not self.stopping():
+            time.sleep(self.POLL_S)
+            paused = not self.viewer.wants_step()
 
     def close(self):
         self.viewer.close()
