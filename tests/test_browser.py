@@ -160,16 +160,15 @@ def test_headless_play_starts_no_viser_server_unless_asked(repo, tmp_path):
     assert not (tmp_path / "cartpole.viser").exists() and (tmp_path / "cartpole.gif").exists()
 
 
-def test_headless_play_records_for_the_static_player(repo, tmp_path, browser):
+def test_headless_play_records_for_the_static_player(repo, tmp_path, browser, run_main):
     """play.py --headless --record-viser writes cartpole.viser beside the GIF, for every task; ``python -m
     cartpole_warp.viz.web`` serves it in viser's player, which loads it without console errors."""
     from cartpole_warp import tasks
 
     for task in tasks.names():
         out = tmp_path / task
-        result = subprocess.run([sys.executable, str(repo / "play.py"), "--agent", "zero", "--headless", "--task",
-                                 task, "--num-envs", "4", "--steps", "40", "--output", str(out), "--record-viser"],
-                                cwd=repo, capture_output=True, text=True, timeout=300)
+        result = run_main("play", "--agent", "zero", "--headless", "--task", task, "--num-envs", 4, "--steps", 40,
+                          "--output", out, "--record-viser")
         assert result.returncode == 0, result.stdout + result.stderr
         assert (out / "cartpole.viser").stat().st_size > 1000
 

@@ -65,11 +65,11 @@ except SystemExit as stop:
     assert "--num-envz" in result.stderr
 
 
-def test_play_keeps_torch_dynamo_out_of_its_process(tmp_path):
+def test_play_keeps_torch_dynamo_out_of_its_process(tmp_path, run_main):
     """play.py loads the actor alone (no optimizer) and imports tensordict with its compile marks deferred, so
-    Dynamo (seconds of import) stays out; training cannot keep it out: torch's optimizers import it when made."""
-    trained = python(f"from cartpole_warp.train import main; main(['--num-envs', '16', '--max-iterations', '1', "
-                     f"'--logger', 'none', '--log-dir', {str(tmp_path)!r}])")
+    Dynamo (seconds of import) stays out of its fresh process; training cannot keep it out (torch's optimizers import
+    it when made), so the checkpoint is trained in this one."""
+    trained = run_main("train", "--num-envs", 16, "--max-iterations", 1, "--logger", "none", "--log-dir", tmp_path)
     assert trained.returncode == 0, trained.stderr
     code = f"""
 import sys
