@@ -79,7 +79,7 @@ def parse(cls: type[Args], default: Args, argv: list[str], description: str) -> 
     tyro's message naming the flag. ``--help`` prints ``short_help``, ``--help-all`` tyro's help of every flag."""
     if FULL_HELP in argv:
         argv = ["--help"]
-    elif "-h" in argv or "--help" in argv:
+    elif asks_help(argv):
         print(short_help(cls, default, description))
         sys.exit(0)
     return tyro.cli(cls, default=default, args=argv, description=description)
@@ -105,9 +105,9 @@ def short_help(cls: type[Args], default: Args, description: str, width: int = 10
         text = " ".join((action.help or "").split())
         default_text = text[text.rfind("(default:"):] if "(default:" in text else ""
         first = re.split(r"(?<=\.)\s", text.removesuffix(default_text).strip(), maxsplit=1)[0]
-        common.append(textwrap.fill(f"{first} {default_text}".strip(), width, initial_indent=" " * 6,
-                                    subsequent_indent=" " * 6))
-        common[-1] = f"  {', '.join(short)}{metavar}\n{common[-1]}"
+        wrapped = textwrap.fill(f"{first} {default_text}".strip(), width, initial_indent=" " * 6,
+                                subsequent_indent=" " * 6)
+        common.append(f"  {', '.join(short)}{metavar}\n{wrapped}")
     return (f"{description.strip()}\n\noptions (the common ones; {FULL_HELP} lists all {other + len(common)} flags, "
             f"every config field):\n  -h, --help\n      this help; {FULL_HELP}: every flag\n" + "\n".join(common))
 
