@@ -10,296 +10,21 @@ per task (Warp closures) and compiled into one module per task.
 """
 
 import abc
-import functools
-import typing
-from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import warp as wp
 
 from . import randomization
 from .config import EnvConfig, TaskConfig
 from .files import data_path
+from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
 from .randomization import Physics, add_friction
 from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
 
 if TYPE_CHECKING:
     import torch  # imported where used: parsing a command line needs no torch
-
-wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
-
-END_NONE = wp.constant(0)
-END_TIME_LIMIT = wp.constant(1)
-END_NONFINITE = wp.constant(2)
-END_DIVERGED = wp.constant(3)
-FIRST_TASK_END = 4
-"""A task's own end reasons (failures) are the codes FIRST_TASK_END, FIRST_TASK_END + 1, ... in its ``task_ends``."""
-COMMON_ENDS = ("running", "time_limit", "nonfinite_state", "diverged_state")
-"""Names of the codes 0-3 of ``end_reason``, the same for every task."""
-
-
-def kernel_params(config_class: type[TaskConfig]) -> type:
-    """The Warp struct of a task config's float fields, each under its own name: the task's constants in its
-    Warp functions (written once, in the dataclass)."""
-    fields = [name for name, kind in typing.get_type_hints(config_class).items() if kind is float]
-    name = f"{config_class.__name__}Params"
-    return wp.struct(type(name, (), {
-        "__annotations__": dict.fromkeys(fields, float),
-        "__module__": config_class.__module__,
-        "__qualname__": name,
-        "__doc__": f"The float fields of {config_class.__name__}, generated from it.",
-    }))
-
-
-def params_of(params_type: type, task: TaskConfig) -> Any:
-    """The kernels' copy of a task config's constants."""
-    params = params_type()
-    for name in params_type.vars:
-        setattr(params, name, getattr(task, name))
-    return params
-
-
-@dataclass(frozen=True)
-class TaskFunctions:
-    """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order
-    of the task's roles, ``Obs`` and ``Actions`` vectors of ``num_obs`` and ``num_actions`` floats, ``p`` the task's
-    ``kernel_params`` struct."""
-
-    observe: Any
-    """``(q: Joints, qd: Joints, p) -> Obs``: the observation of a joint state."""
-    evaluate: Any
-    """``(q: Joints, qd: Joints, action: Actions, p) -> (reward: float, end: int)`` on the state after the physics
-    step (``action`` already clipped to [-1, 1]); ``end`` is END_NONE or one of the task's codes (FIRST_TASK_END +
-    i)."""
-    sample_reset: Any
-    """``(rng_state: wp.array(dtype=wp.uint32), env: int, p) -> (q: Joints, qd: Joints)``: a random start; advances
-    ``rng_state[env]``."""
-    joint_forces: Any
-    """``(action: Actions, p) -> Joints``: the generalised force (N or N m) on each role's joint for an action."""
-
-
-@wp.kernel
-def init_rng(seed: int, first_env: int, rng_state: wp.array(dtype=wp.uint32)):
-    """Seed each env's RNG from ``seed`` and its global index (``first_env`` + thread), whatever the sharding."""
-    env = wp.tid()
-    rng_state[env] = wp.rand_init(seed, first_env + env)
-
-
-@functools.cache
-def build_kernels(env_class: "type[BatchedEnv]") -> SimpleNamespace:  # noqa: UP037 (no __future__ annotations: Warp
-    # reads the closure's kernel annotations as objects)
-    """The env kernels of a task: the machinery's step, reset and set-state kernels with the task's functions inlined,
-    one Warp module per task (compiled on first use, cached on disk)."""
-    fns, num_joints, num_actions = env_class.functions, len(env_class.joint_roles), env_class.num_actions
-    Joints = wp.types.vector(num_joints, float)
-    Actions = wp.types.vector(env_class.num_actions, float)
-    Obs = wp.types.vector(env_class.num_obs, float)
-    State = wp.types.vector(2 * num_joints, float)
-    Params = env_class.params_type
-    module = f"{env_class.__module__}.{env_class.__qualname__}.kernels"
-    kernel = functools.partial(wp.kernel, module=module, enable_backward=False)
-
-    @wp.func
-    def read_joints(joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), base: int,
-                    role_dofs: wp.array(dtype=int)):
-        q, qd = Joints(), Joints()
-        for r in range(num_joints):
-            q[r] = joint_q[base + role_dofs[r]]
-            qd[r] = joint_qd[base + role_dofs[r]]
-        return q, qd
-
-    @wp.func
-    def all_finite(q: Joints, qd: Joints):
-        ok = True
-        for r in range(num_joints):
-            ok = ok and wp.isfinite(q[r]) and wp.isfinite(qd[r])
-        return ok
-
-    @wp.func
-    def all_within(q: Joints, qd: Joints, limit: float):
-        """Every joint position and velocity within +-``limit`` (so finite: a NaN fails the comparison)."""
-        ok = True
-        for r in range(num_joints):
-            ok = ok and wp.abs(q[r]) <= limit and wp.abs(qd[r]) <= limit
-        return ok
-
-    @wp.func
-    def noisy(o: Obs, noise_std: float, rng_state: wp.array(dtype=wp.uint32), env: int):
-        """``o`` plus Gaussian noise of ``noise_std`` per element (none, and no draw, at 0)."""
-        out = o
-        if noise_std > 0.0:
-            s = rng_state[env]
-            for i in range(env_class.num_obs):
-                out[i] = out[i] + noise_std * wp.randn(s)
-            rng_state[env] = s
-        return out
-
-    @wp.func
-    def begin_episode(env: int, q: Joints, qd: Joints, p: Params, noise_std: float, base: int, dofs_per_env: int,
-                      role_dofs: wp.array(dtype=int), rng_state: wp.array(dtype=wp.uint32),
-                      joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
-                      last_q: wp.array(dtype=Joints), last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs),
-                      episode_length: wp.array(dtype=wp.int32), steps_run: wp.array(dtype=wp.int32),
-                      episode_return: wp.array(dtype=float)):
-        for d in range(dofs_per_env):
-            joint_q[base + d] = 0.0
-            joint_qd[base + d] = 0.0
-        for r in range(num_joints):
-            joint_q[base + role_dofs[r]] = q[r]
-            joint_qd[base + role_dofs[r]] = qd[r]
-        last_q[env] = q
-        last_qd[env] = qd
-        obs[env] = noisy(fns.observe(q, qd, p), noise_std, rng_state, env)
-        episode_length[env] = 0
-        steps_run[env] = 0
-        episode_return[env] = 0.0
-
-    @kernel
-    def apply_actions(p: Params, dofs_per_env: int, role_dofs: wp.array(dtype=int),
-                      steps_run: wp.array(dtype=wp.int32), delay: wp.array(dtype=wp.int32),
-                      actuator_scale: wp.array(dtype=float), actions: wp.array(dtype=Actions),
-                      action_history: wp.array2d(dtype=Actions), joint_f: wp.array(dtype=float),
-                      actuator_f: wp.array2d(dtype=float), nonfinite_action_count: wp.array(dtype=wp.int32)):
-        """Clip each action to [-1, 1] in place (a non-finite one becomes 0 and is counted), keep it in the env's
-        action history, then write the task's joint forces for the action ``delay`` steps ago (none before the
-        episode's first), times ``actuator_scale``."""
-        env = wp.tid()
-        a = actions[env]
-        finite = True
-        for i in range(num_actions):
-            finite = finite and wp.isfinite(a[i])
-        if not finite:
-            a = Actions()
-            wp.atomic_add(nonfinite_action_count, 0, 1)
-        for i in range(num_actions):
-            a[i] = wp.clamp(a[i], -1.0, 1.0)
-        actions[env] = a
-        slots = action_history.shape[1]
-        step = steps_run[env]
-        action_history[env, step % slots] = a
-        applied = Actions()
-        if step >= delay[env]:
-            applied = action_history[env, (step - delay[env]) % slots]
-        forces = fns.joint_forces(applied, p) * actuator_scale[env]
-        base = env * dofs_per_env
-        for r in range(num_joints):
-            joint_f[base + role_dofs[r]] = forces[r]
-            actuator_f[env, r] = forces[r]
-
-    @kernel
-    def random_actions(rng_state: wp.array(dtype=wp.uint32), actions: wp.array(dtype=Actions)):
-        """Uniform random actions in [-1, 1] (the physics-alone benchmark)."""
-        env = wp.tid()
-        s = rng_state[env]
-        a = Actions()
-        for i in range(num_actions):
-            a[i] = wp.randf(s, -1.0, 1.0)
-        rng_state[env] = s
-        actions[env] = a
-
-    @kernel
-    def finish_step(p: Params, noise_std: float, divergence_limit: float, dofs_per_env: int,
-                    role_dofs: wp.array(dtype=int), max_episode_length: int, actions: wp.array(dtype=Actions),
-                    rng_state: wp.array(dtype=wp.uint32),
-                    joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
-                    last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
-                    steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float),
-                    reward: wp.array(dtype=float), terminated: wp.array(dtype=wp.bool),
-                    truncated: wp.array(dtype=wp.bool), final_obs: wp.array(dtype=Obs),
-                    ended_return: wp.array(dtype=float), ended_length: wp.array(dtype=wp.int32),
-                    end_reason: wp.array(dtype=wp.int32), nonfinite_state_count: wp.array(dtype=wp.int32),
-                    diverged_state_count: wp.array(dtype=wp.int32)):
-        """After the physics: observe, reward, end reason, time limit; keep the final observation; reset ended envs.
-
-        A non-finite physics state, or one with a joint position or velocity beyond ``divergence_limit`` (runaway
-        physics), ends the episode with reward 0 and is counted; its final observation is the last sound one, and its
-        end reason that state's (a task failure when it was already beyond the task's limits, else
-        'nonfinite_state' or 'diverged_state'). ``episode_length`` counts toward the time limit (rsl-rl may start it
-        at random values); ``steps_run`` counts the steps the episode really ran, which ``ended_length`` reports."""
-        env = wp.tid()
-        base = env * dofs_per_env
-        q, qd = read_joints(joint_q, joint_qd, base, role_dofs)
-        length = episode_length[env] + 1
-        steps = steps_run[env] + 1
-        a = actions[env]
-        o = obs[env]
-        r = float(0.0)  # noqa: UP018 (a Warp variable that the branch below assigns, not a constant)
-        reason = END_NONE
-        if all_within(q, qd, divergence_limit):
-            o = noisy(fns.observe(q, qd, p), noise_std, rng_state, env)
-            r, reason = fns.evaluate(q, qd, a, p)
-        else:
-            unused, reason = fns.evaluate(last_q[env], last_qd[env], a, p)
-            if all_finite(q, qd):
-                wp.atomic_add(diverged_state_count, 0, 1)
-                if reason == END_NONE:
-                    reason = END_DIVERGED
-            else:
-                wp.atomic_add(nonfinite_state_count, 0, 1)
-                if reason == END_NONE:
-                    reason = END_NONFINITE
-        if reason == END_NONE and length >= max_episode_length:
-            reason = END_TIME_LIMIT
-        ret = episode_return[env] + r
-        reward[env] = r
-        terminated[env] = reason != END_NONE and reason != END_TIME_LIMIT
-        truncated[env] = reason == END_TIME_LIMIT
-        final_obs[env] = o
-        end_reason[env] = reason
-        if reason == END_NONE:
-            obs[env] = o
-            last_q[env] = q
-            last_qd[env] = qd
-            episode_length[env] = length
-            steps_run[env] = steps
-            episode_return[env] = ret
-        else:
-            ended_return[env] = ret
-            ended_length[env] = steps
-            q0, qd0 = fns.sample_reset(rng_state, env, p)
-            begin_episode(env, q0, qd0, p, noise_std, base, dofs_per_env, role_dofs, rng_state, joint_q, joint_qd,
-                          last_q, last_qd, obs, episode_length, steps_run, episode_return)
-
-    @kernel
-    def reset_masked(mask: wp.array(dtype=wp.bool), p: Params, noise_std: float, dofs_per_env: int,
-                     role_dofs: wp.array(dtype=int), rng_state: wp.array(dtype=wp.uint32),
-                     joint_q: wp.array(dtype=float),
-                     joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints), last_qd: wp.array(dtype=Joints),
-                     obs: wp.array(dtype=Obs), episode_length: wp.array(dtype=wp.int32),
-                     steps_run: wp.array(dtype=wp.int32), episode_return: wp.array(dtype=float)):
-        """Start a new episode from the task's random start in every env where ``mask`` is set."""
-        env = wp.tid()
-        if mask[env]:
-            q, qd = fns.sample_reset(rng_state, env, p)
-            begin_episode(env, q, qd, p, noise_std, env * dofs_per_env, dofs_per_env, role_dofs, rng_state, joint_q,
-                          joint_qd, last_q, last_qd, obs, episode_length, steps_run, episode_return)
-
-    @kernel
-    def set_states_masked(states: wp.array(dtype=State), mask: wp.array(dtype=wp.bool), p: Params,
-                          noise_std: float, dofs_per_env: int, role_dofs: wp.array(dtype=int),
-                          rng_state: wp.array(dtype=wp.uint32), joint_q: wp.array(dtype=float),
-                          joint_qd: wp.array(dtype=float), last_q: wp.array(dtype=Joints),
-                          last_qd: wp.array(dtype=Joints), obs: wp.array(dtype=Obs),
-                          episode_length: wp.array(dtype=wp.int32), steps_run: wp.array(dtype=wp.int32),
-                          episode_return: wp.array(dtype=float)):
-        """Start a new episode from ``states`` (per joint role: position, velocity) where ``mask`` is set."""
-        env = wp.tid()
-        if mask[env]:
-            s = states[env]
-            q, qd = Joints(), Joints()
-            for r in range(num_joints):
-                q[r] = s[2 * r]
-                qd[r] = s[2 * r + 1]
-            begin_episode(env, q, qd, p, noise_std, env * dofs_per_env, dofs_per_env, role_dofs, rng_state, joint_q,
-                          joint_qd, last_q, last_qd, obs, episode_length, steps_run, episode_return)
-
-    return SimpleNamespace(Joints=Joints, Actions=Actions, Obs=Obs, State=State, apply_actions=apply_actions,
-                           random_actions=random_actions, finish_step=finish_step, reset_masked=reset_masked,
-                           set_states_masked=set_states_masked)
-
 
 class BatchedEnv(abc.ABC):
     """``num_envs`` copies of a task's robot stepped together on persistent Warp buffers (the machinery of every task).
@@ -323,9 +48,7 @@ class BatchedEnv(abc.ABC):
     """
 
     config_class: ClassVar[type[TaskConfig]]
-    """The task's settings (``env.task``)."""
-    params_type: ClassVar[type]
-    """``kernel_params(config_class)``: the struct the task's functions take."""
+    """The task's settings (``env.task``); its float fields are the constants its functions read (``p``)."""
     num_obs: ClassVar[int]
     num_actions: ClassVar[int]
     stage: ClassVar[str | Path]
@@ -366,7 +89,8 @@ class BatchedEnv(abc.ABC):
         self.env_dt = cfg.sim.env_dt
         self.end_reasons = COMMON_ENDS + self.task_ends
         """Names of the ``end_reason`` codes, by code."""
-        self._kernels = build_kernels(type(self))
+        self._kernels = build_kernels(self.functions, self.config_class, len(self.joint_roles), self.num_actions,
+                                      self.num_obs, f"{type(self).__module__}.{type(self).__qualname__}.kernels")
         stage = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
                  else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
         cfg.randomization.validate(self.joint_roles)
@@ -377,7 +101,7 @@ class BatchedEnv(abc.ABC):
         with timed(self.build_time_s, "scene"):
             self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
                            for i, (start, stop) in enumerate(bounds)]
-        self.params = params_of(self.params_type, cfg.task)
+        self.params = params_of(self.config_class, cfg.task)
         self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
         from .streams import TorchOrder  # torch, imported once an env is built
 
@@ -385,7 +109,6 @@ class BatchedEnv(abc.ABC):
         self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
                                self.num_envs, self.device)
         """The per-env physical parameters and their draws."""
-        self._noise_std = float(cfg.randomization.obs_noise_std)
         self._allocate()
         with timed(self.build_time_s, "kernels"):
             self._seed(cfg.seed)
@@ -397,8 +120,8 @@ class BatchedEnv(abc.ABC):
     def warp_modules(self) -> list[wp.Module]:
         """The Warp modules this env launches kernels of (loaded when it is built): Newton's (but mujoco-warp's), the
         machinery's, the randomization's and the task's."""
-        return [*preloadable_modules(self.cfg.sim.solver), wp.get_module(__name__),
-                wp.get_module(randomization.__name__), self._kernels.finish_step.module]
+        return [*preloadable_modules(self.cfg.sim.solver), init_rng.module, wp.get_module(randomization.__name__),
+                self._kernels.end_step.module]
 
     @property
     def scene(self) -> Scene:
@@ -411,43 +134,40 @@ class BatchedEnv(abc.ABC):
         def buf(dtype, shape=n):
             return wp.zeros(shape, dtype=dtype, device=dev)
 
-        self._rng_state = buf(wp.uint32)
         self._actions = buf(k.Actions)
         self._action_history = buf(k.Actions, (n, self.cfg.randomization.action_delay_steps + 1))
         self._actuator_f = buf(float, (n, len(self.joint_roles)))
-        self._obs = buf(k.Obs)
-        self._final_obs = buf(k.Obs)
-        self._last_q = buf(k.Joints)
-        self._last_qd = buf(k.Joints)
-        self._reward = buf(float)
-        self._terminated = buf(wp.bool)
-        self._truncated = buf(wp.bool)
-        self._episode_length = buf(wp.int32)
-        self._steps_run = buf(wp.int32)
-        self._episode_return = buf(float)
-        self._ended_return = buf(float)
-        self._ended_length = buf(wp.int32)
-        self._end_reason = buf(wp.int32)
+        self._episodes = k.Episodes()
+        for name, dtype in k.Episodes.vars.items():
+            setattr(self._episodes, name, buf(dtype.type.dtype))
+        self._results = k.StepResults()
+        for name, dtype in k.StepResults.vars.items():
+            setattr(self._results, name, buf(dtype.type.dtype))
         self._nonfinite_actions = buf(wp.int32, len(self.shards))
         self._nonfinite_states = buf(wp.int32, len(self.shards))
         self._diverged_states = buf(wp.int32, len(self.shards))
         self._states_in = buf(k.State)
         self._mask_in = buf(wp.bool)
         self._all_envs = wp.full(n, True, dtype=wp.bool, device=dev)
+        self._settings = k.StepSettings()
+        self._settings.noise_std = float(self.cfg.randomization.obs_noise_std)
+        self._settings.divergence_limit = float(self.cfg.sim.divergence_limit)
+        self._settings.max_episode_length = int(self.max_episode_length)
+        self._shard_structs = [self._structs_of(shard) for shard in self.shards]
 
         self.actions_buf = wp.to_torch(self._actions)
-        self.obs_buf = wp.to_torch(self._obs)
-        self.reward_buf = wp.to_torch(self._reward)
-        self.terminated_buf = wp.to_torch(self._terminated)
-        self.truncated_buf = wp.to_torch(self._truncated)
-        self._episode_length_t = wp.to_torch(self._episode_length)
+        self.obs_buf = wp.to_torch(self._episodes.obs)
+        self.reward_buf = wp.to_torch(self._results.reward)
+        self.terminated_buf = wp.to_torch(self._results.terminated)
+        self.truncated_buf = wp.to_torch(self._results.truncated)
+        self._time_out_count_t = wp.to_torch(self._episodes.time_out_count)
         self._states_in_t = wp.to_torch(self._states_in)
         self._mask_in_t = wp.to_torch(self._mask_in)
         self._info_views = {
-            "final_obs": wp.to_torch(self._final_obs),
-            "episode_return": wp.to_torch(self._ended_return),
-            "episode_length": wp.to_torch(self._ended_length),
-            "end_reason": wp.to_torch(self._end_reason),
+            "final_obs": wp.to_torch(self._results.final_obs),
+            "episode_return": wp.to_torch(self._results.ended_return),
+            "episode_length": wp.to_torch(self._results.ended_length),
+            "end_reason": wp.to_torch(self._results.end_reason),
         }
         self._counter_views = {
             "nonfinite_actions": wp.to_torch(self._nonfinite_actions),
@@ -455,23 +175,37 @@ class BatchedEnv(abc.ABC):
             "diverged_states": wp.to_torch(self._diverged_states),
         }
 
+    def _structs_of(self, shard: Shard) -> tuple:
+        """(robot, episodes, results): the kernels' structs over the shard's scene and rows (views, made once)."""
+        k, s = self._kernels, shard.scene
+        robot = k.Robot()
+        robot.joint_q, robot.joint_qd, robot.joint_f = s.state_0.joint_q, s.state_0.joint_qd, s.control.joint_f
+        robot.dofs_per_env, robot.role_dofs = s.dofs_per_env, self._role_dofs
+        views = []
+        for whole, struct in ((self._episodes, k.Episodes), (self._results, k.StepResults)):
+            part = struct()
+            for name in struct.vars:
+                setattr(part, name, shard.rows(getattr(whole, name)))
+            views.append(part)
+        return robot, *views
+
     @property
     def episode_length_buf(self) -> "torch.Tensor":
         """(N,) int32 time-out counter: the episode is truncated when it reaches ``max_episode_length`` (zero-copy;
         assigning copies into it, as rsl-rl's ``init_at_random_ep_len`` does to spread the time-outs). The
         ``episode_length`` reported at the end is the steps the episode really ran, whatever was assigned."""
-        return self._episode_length_t
+        return self._time_out_count_t
 
     @episode_length_buf.setter
     def episode_length_buf(self, value: "torch.Tensor"):
-        self._episode_length_t.copy_(value)
+        self._time_out_count_t.copy_(value)
 
     def _apply_actions(self, shard: Shard):
-        s, rows, physics = shard.scene, shard.rows, self.physics
+        robot, episodes, _ = self._shard_structs[shard.index]
+        rows = shard.rows
         wp.launch(self._kernels.apply_actions, dim=shard.num_envs,
-                  inputs=[self.params, s.dofs_per_env, self._role_dofs, rows(self._steps_run), rows(physics.delay),
-                          rows(physics.actuator_scale)],
-                  outputs=[rows(self._actions), rows(self._action_history), s.control.joint_f, rows(self._actuator_f),
+                  inputs=[self.params, robot, episodes, rows(self.physics.delay), rows(self.physics.actuator_scale)],
+                  outputs=[rows(self._actions), rows(self._action_history), rows(self._actuator_f),
                            shard.slot(self._nonfinite_actions)],
                   device=self.device)
 
@@ -490,48 +224,36 @@ class BatchedEnv(abc.ABC):
     def physics_step(self, shard: Shard):
         """Random actions in [-1, 1], the task's joint forces and ``decimation`` solver steps for one shard: an env step
         without observations, rewards or resets (what ``tools.bench`` times as the physics alone)."""
-        wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(self._rng_state)],
+        wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(self._episodes.rng_state)],
                   outputs=[shard.rows(self._actions)], device=self.device)
         self._apply_actions(shard)
         self._simulate(shard)
 
     def _step_kernels(self, shard: Shard):
-        s, rows, k = shard.scene, shard.rows, self._kernels
+        robot, episodes, results = self._shard_structs[shard.index]
         self._apply_actions(shard)
         self._simulate(shard)
-        wp.launch(
-            k.finish_step, dim=shard.num_envs,
-            inputs=[self.params, self._noise_std, self.cfg.sim.divergence_limit, s.dofs_per_env, self._role_dofs,
-                    self.max_episode_length, rows(self._actions)],
-            outputs=[rows(self._rng_state), s.state_0.joint_q, s.state_0.joint_qd, rows(self._last_q),
-                     rows(self._last_qd), rows(self._obs), rows(self._episode_length), rows(self._steps_run),
-                     rows(self._episode_return), rows(self._reward), rows(self._terminated), rows(self._truncated),
-                     rows(self._final_obs), rows(self._ended_return), rows(self._ended_length), rows(self._end_reason),
-                     shard.slot(self._nonfinite_states), shard.slot(self._diverged_states)],
-            device=self.device,
-        )
+        wp.launch(self._kernels.end_step, dim=shard.num_envs,
+                  inputs=[self.params, self._settings, robot, shard.rows(self._actions)],
+                  outputs=[episodes, results, shard.slot(self._nonfinite_states), shard.slot(self._diverged_states)],
+                  device=self.device)
         if self.physics.drawn and self.cfg.randomization.at == "reset":
-            self.physics.draw(shard, self._rng_state, self._end_reason)
-
-    def _episode_outputs(self, shard: Shard) -> list:
-        s, rows = shard.scene, shard.rows
-        return [s.state_0.joint_q, s.state_0.joint_qd, rows(self._last_q), rows(self._last_qd), rows(self._obs),
-                rows(self._episode_length), rows(self._steps_run), rows(self._episode_return)]
+            self.physics.draw(shard, self._episodes.rng_state, self._results.end_reason)
 
     def _seed(self, seed: int):
         for shard in self.shards:
             wp.launch(init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
-                      outputs=[shard.rows(self._rng_state)], device=self.device)
+                      outputs=[shard.rows(self._episodes.rng_state)], device=self.device)
 
     def _reset_all(self):
         """A new episode in every env, and new physics where it is randomized."""
         for shard in self.shards:
+            robot, episodes, _ = self._shard_structs[shard.index]
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
-                      inputs=[shard.rows(self._all_envs), self.params, self._noise_std, shard.scene.dofs_per_env,
-                              self._role_dofs],
-                      outputs=[shard.rows(self._rng_state), *self._episode_outputs(shard)], device=self.device)
+                      inputs=[shard.rows(self._all_envs), self.params, self._settings],
+                      outputs=[robot, episodes], device=self.device)
             if self.physics.drawn:
-                self.physics.draw(shard, self._rng_state, None)
+                self.physics.draw(shard, self._episodes.rng_state, None)
 
     def _check(self, name: str, value, shapes: tuple, dtype: "torch.dtype") -> "torch.Tensor":
         import torch
@@ -591,10 +313,10 @@ class BatchedEnv(abc.ABC):
             self._mask_in_t.copy_(mask)
         with self._order:
             for shard in self.shards:
+                robot, episodes, _ = self._shard_structs[shard.index]
                 wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
-                          inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params,
-                                  self._noise_std, shard.scene.dofs_per_env, self._role_dofs],
-                          outputs=[shard.rows(self._rng_state), *self._episode_outputs(shard)], device=self.device)
+                          inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params, self._settings],
+                          outputs=[robot, episodes], device=self.device)
         return self.obs_buf.clone()
 
     def physical_params(self) -> "dict[str, torch.Tensor]":

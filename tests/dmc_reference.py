@@ -84,3 +84,52 @@ def swingup_observations(states):
     """(N, 5) ``[cart_pos, cos(pole_angle), sin(pole_angle), cart_vel, pole_vel]``."""
     cart_pos, cart_vel, pole_angle, pole_vel = _split(states)
     return np.stack([cart_pos, np.cos(pole_angle), np.sin(pole_angle), cart_vel, pole_vel], axis=1)
+
+
+# dm_control/suite/cartpole.py for a chain of poles (``two_poles``, ``three_poles``: ``_make_model(n)``), batched:
+# ``q`` and ``qd`` are (N, 1 + n) [cart, hinge_1, ..., hinge_n] positions and velocities, each hinge's angle relative
+# to the body below it (MuJoCo's qpos). Physics.pole_angle_cosine() is each pole's xmat zz, the cosine of its angle in
+# the world (the sum of the hinge angles up to it); Physics.angular_vel() is qvel[1:], the hinges' own velocities.
+def _chain(q):
+    q = np.asarray(q, dtype=np.float64)
+    world = np.cumsum(q[:, 1:], axis=1)
+    return q[:, 0], np.cos(world), np.sin(world)
+
+
+# Balance._get_reward(physics, sparse=False) over n poles.
+def chain_swingup_reward(q, qd, actions):
+    """(N,) ``upright.mean() * small_control * small_velocity * centered`` with upright and small_velocity over
+    the poles."""
+    cart_position, pole_angle_cosine, _ = _chain(q)
+    control = np.asarray(actions, dtype=np.float64).reshape(-1)
+    upright = (pole_angle_cosine + 1) / 2
+    centered = tolerance(cart_position, margin=2)
+    centered = (1 + centered) / 2
+    small_control = tolerance(control, margin=1, value_at_margin=0, sigmoid="quadratic")
+    small_control = (4 + small_control) / 5
+    small_velocity = tolerance(np.asarray(qd, dtype=np.float64)[:, 1:], margin=5).min(axis=1)
+    small_velocity = (1 + small_velocity) / 2
+    return upright.mean(axis=1) * small_control * small_velocity * centered
+
+
+# Balance._get_reward(physics, sparse=True), with Balance._CART_RANGE = (-.25, .25), _ANGLE_COSINE_RANGE = (.995, 1).
+def sparse_reward(q):
+    """(N,) 1 where the cart is within 0.25 m of the centre and every pole's cosine is in [0.995, 1], else 0."""
+    cart_position, pole_angle_cosine, _ = _chain(q)
+    cart_in_bounds = tolerance(cart_position, (-0.25, 0.25))
+    angle_in_bounds = tolerance(pole_angle_cosine, (0.995, 1)).prod(axis=1)
+    return cart_in_bounds * angle_in_bounds
+
+
+# Balance.get_observation over n poles: position = [cart_position, (xmat zz, xmat xz) per pole], velocity = qvel; xz
+# is the sine of the pole's world angle with this project's sign (see the module's docstring).
+def chain_observations(q, qd):
+    """(N, 3n + 2) ``[cart_pos, cos phi_1, sin phi_1, ..., cos phi_n, sin phi_n, cart_vel, hinge velocities]``."""
+    cart_position, cosines, sines = _chain(q)
+    position = np.stack([cosines, sines], axis=2).reshape(len(cart_position), -1)
+    return np.concatenate([cart_position[:, None], position, np.asarray(qd, dtype=np.float64)], axis=1)
+
+
+def on_the_edge(cart_pos, cosine):
+    """Where float32 and float64 may disagree about the sparse band: within 1e-5 of its cart or cosine bound."""
+    return (np.abs(np.abs(cart_pos) - 0.25) < 1e-5) | (np.abs(cosine - 0.995) < 1e-5)

@@ -12,8 +12,8 @@ from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
 from cartpole_warp.config import MAX_EPISODE_LENGTH
-from cartpole_warp.env import COMMON_ENDS
 from cartpole_warp.files import data_path
+from cartpole_warp.kernels import COMMON_ENDS
 from cartpole_warp.runtime import shard_bounds
 from cartpole_warp.scene import JointRole, pick_joint
 

@@ -35,7 +35,11 @@ def core_env(env_id, num_envs, **overrides):
 
 def test_every_task_has_ids_and_they_are_registered():
     assert IDS == {DEFAULT_ID: ("cartpole-balance", None), TUTORIAL_ID: ("cartpole-balance", "tutorial"),
-                   SWINGUP_ID: ("cartpole-swingup", None), DOUBLE_POLE_ID: ("cart-double-pole-balance", None)}
+                   SWINGUP_ID: ("cartpole-swingup", None), DOUBLE_POLE_ID: ("cart-double-pole-balance", None),
+                   "cartpole_warp/CartpoleBalanceSparse-v0": ("cartpole-balance-sparse", None),
+                   "cartpole_warp/CartpoleSwingupSparse-v0": ("cartpole-swingup-sparse", None),
+                   "cartpole_warp/CartTwoPoleSwingup-v0": ("cart-two-pole-swingup", None),
+                   "cartpole_warp/CartThreePoleSwingup-v0": ("cart-three-pole-swingup", None)}
     assert {task for task, _ in IDS.values()} == set(cartpole_warp.tasks.names())
     assert set(IDS) <= set(gym.registry)
 

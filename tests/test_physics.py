@@ -354,3 +354,110 @@ def test_double_pole_trajectory_matches_closed_form(solver, make):
         diff[:, [2, 4]] = np.angle(np.exp(1j * diff[:, [2, 4]]))
         err, scale = np.abs(diff).max(axis=0), np.abs(reference[:length]).max(axis=0)
         assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"
+
+
+def chain_parameters(num_poles):
+    """dm_control's cart + chain of ``num_poles`` poles (``usd/cartpole_dmc_<n>poles.usda``), read from the stage: cart
+    mass; per pole (all alike, checked) its mass, hinge-to-COM distance and inertia about its COM around the hinge axis
+    (X); the hinge-to-hinge spacing; gravity."""
+    stage = Usd.Stage.Open(str(data_path("usd", f"cartpole_dmc_{num_poles}poles.usda")))
+    names = ["pole"] + [f"pole{k}" for k in range(2, num_poles + 1)]
+    masses = [UsdPhysics.MassAPI(stage.GetPrimAtPath(f"/cartpole/{name}")) for name in names]
+    joints = [UsdPhysics.RevoluteJoint(stage.GetPrimAtPath(f"/cartpole/{name}Joint")) for name in names]
+    assert all(joint.GetAxisAttr().Get() == "X" for joint in joints)
+    facts = {(m.GetMassAttr().Get(), tuple(m.GetCenterOfMassAttr().Get()), tuple(m.GetDiagonalInertiaAttr().Get()))
+             for m in masses}
+    assert len(facts) == 1, "identical poles"
+    (mass, com, inertia), = facts
+    spacings = {tuple(joint.GetLocalPos0Attr().Get()) for joint in joints[1:]}
+    assert len(spacings) == 1
+    return {"cart_mass": UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/cart")).GetMassAttr().Get(),
+            "mass": mass, "com": com[2], "inertia": inertia[0], "spacing": next(iter(spacings))[2],
+            "gravity": UsdPhysics.Scene(stage.GetPrimAtPath("/physicsScene")).GetGravityMagnitudeAttr().Get()}
+
+
+def chain_rollout(state0, forces, dt, p, num_poles, substeps=2):
+    """RK4 of a rigid cart and a chain of ``num_poles`` identical rigid poles (Lagrange equations for any number).
+
+    With absolute pole angles phi_k (about +X, 0 upright) pole k's COM sits at (y, z) = (x - s sum_{j<k} sin phi_j -
+    c sin phi_k, s sum_{j<k} cos phi_j + c cos phi_k) (s the hinge spacing, c the COM's distance). With the arm of pole
+    k on angle j, a_kj = s for j < k and c for j = k, A_j = m sum_k a_kj and B_ij = m sum_k a_ki a_kj:
+
+        (m0 + n m) x'' - sum_j A_j cos phi_j phi_j'' = F - sum_j A_j sin phi_j phi_j'^2
+        -A_i cos phi_i x'' + sum_j (B_ij cos(phi_i - phi_j) + I [i = j]) phi_j'' = g A_i sin phi_i
+                                                                                - sum_j B_ij sin(phi_i - phi_j) phi_j'^2
+
+    ``state0`` and the result are per joint role (position, velocity): the cart, then each pole's angle relative to
+    the one below, as the joints measure them."""
+    n, m, g = num_poles, p["mass"], p["gravity"]
+    arms = np.tril(np.full((n, n), p["spacing"]), -1) + p["com"] * np.eye(n)
+    big_a, big_b = m * arms.sum(axis=0), m * arms.T @ arms
+
+    def deriv(state, force):
+        phi, xd, phid = state[1:n + 1], state[n + 1], state[n + 2:]
+        mass = np.empty((n + 1, n + 1))
+        mass[0, 0] = p["cart_mass"] + n * m
+        mass[0, 1:] = mass[1:, 0] = -big_a * np.cos(phi)
+        diff = phi[:, None] - phi[None, :]
+        mass[1:, 1:] = big_b * np.cos(diff) + p["inertia"] * np.eye(n)
+        rhs = np.concatenate([[force - (big_a * np.sin(phi) * phid**2).sum()],
+                              g * big_a * np.sin(phi) - (big_b * np.sin(diff)) @ phid**2])
+        return np.concatenate([[xd], phid, np.linalg.solve(mass, rhs)])
+
+    joints = np.asarray(state0, dtype=np.float64).reshape(n + 1, 2)
+    absolute = np.concatenate([[joints[0]], np.cumsum(joints[1:], axis=0)])
+    out = rk4(deriv, np.concatenate([absolute[:, 0], absolute[:, 1]]), forces, dt, substeps)
+    q, qd = out[:, : n + 1], out[:, n + 1:]
+    q[:, 2:], qd[:, 2:] = np.diff(q[:, 1:], axis=1), np.diff(qd[:, 1:], axis=1)
+    return np.stack([q, qd], axis=2).reshape(len(forces), 2 * (n + 1))
+
+
+def test_the_chain_reference_is_the_double_pendulums_closed_form():
+    """Two derivations agree: the chain's equations for n poles at n = 2 and the double pole's own, on Newton's
+    double-pole parameters, over 1 s of pushes from a tilted start."""
+    p = double_pole_parameters()
+    assert p["mass1"] == p["mass2"] and p["com1"] == p["com2"] and p["inertia1"] == p["inertia2"]
+    chain = {"cart_mass": p["cart_mass"], "mass": p["mass1"], "com": p["com1"], "inertia": p["inertia1"],
+             "spacing": p["length1"], "gravity": p["gravity"]}
+    start = [0.1, 0.2, 0.3, -0.4, -0.5, 0.6]
+    forces = 20.0 * np.sin(np.arange(100) * 0.1)
+    closed = double_pole_rollout(start, forces, 0.01, p)
+    numeric = chain_rollout(start, forces, 0.01, chain, 2, substeps=10)
+    assert np.abs(closed).max() > 1.0
+    np.testing.assert_allclose(numeric, closed, atol=1e-9)
+
+
+@pytest.mark.parametrize("num_poles, task_name", [(2, "cart-two-pole-swingup"), (3, "cart-three-pole-swingup")])
+@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+def test_pole_chain_trajectory_matches_the_lagrangian(num_poles, task_name, solver, make):
+    """dm_control's chain stages stepped through their swing-up envs, 1.2 s from hanging and tilted starts and 0.6 s
+    from near-upright ones (the chain is unstable there), against ``chain_rollout``; the single pole's tolerance."""
+    p = chain_parameters(num_poles)
+    assert (p["cart_mass"], p["mass"], p["com"], p["spacing"]) == pytest.approx((1.0, 0.1, 0.5, 1.0))
+    rng = np.random.default_rng(num_poles)
+    starts = np.zeros((3, 2 * (num_poles + 1)))
+    starts[0, 2] = math.pi - 0.3
+    starts[1, 2::2] = rng.uniform(-1.0, 1.0, num_poles) + np.array([math.pi] + [0.0] * (num_poles - 1))
+    starts[2, 2::2] = rng.uniform(-0.1, 0.1, num_poles)
+    starts[1:, 1::2] = rng.uniform(-0.5, 0.5, (2, num_poles + 1))
+    env = make(3, task_name=task_name,
+               sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
+               task={"episode_length_s": None})
+    env.set_state(torch.tensor(starts, dtype=torch.float32, device=env.device))
+    steps = round(DURATION_S / PHYSICS_DT_S)
+    commands = actions(steps, (0.8, 0.5, -0.15))
+    trajectory = []
+    for k in range(steps):
+        env.step(torch.tensor(commands[k], dtype=torch.float32, device=env.device).reshape(3, 1))
+        q = env.scene.state_0.joint_q.numpy().reshape(3, -1)
+        qd = env.scene.state_0.joint_qd.numpy().reshape(3, -1)
+        trajectory.append(np.stack([q, qd], axis=2).reshape(3, -1))
+    trajectory = np.array(trajectory, dtype=np.float64)
+    for i in range(3):
+        reference = chain_rollout(starts[i], 10.0 * np.clip(commands[:, i], -1, 1), PHYSICS_DT_S, p, num_poles)
+        length = steps if i < 2 else steps // 2
+        assert np.abs(reference[:length, 0]).max() < 1.7, "the cart stays clear of the slider's 1.8 m limits"
+        diff = trajectory[:length, i] - reference[:length]
+        diff[:, 2::2] = np.angle(np.exp(1j * diff[:, 2::2]))
+        err, scale = np.abs(diff).max(axis=0), np.abs(reference[:length]).max(axis=0)
+        assert (err <= 0.006 * scale + 2e-3).all(), f"env {i}: max error {err} vs trajectory range {scale}"

@@ -47,10 +47,33 @@ def mujoco_mass_properties():
             for i, name in ((1, "cart"), (2, "pole"))}
 
 
-def test_committed_stage_matches_the_script():
+def test_committed_stages_match_the_script():
     writer = load_writer()
     assert STAGE.read_text() == writer.dmc_stage_text(), "run: python usd/make_cartpole.py"
     assert writer.stage_text() != writer.dmc_stage_text()
+    for n in writer.CHAINS:
+        chain = STAGE.with_name(f"cartpole_dmc_{n}poles.usda")
+        assert chain.read_text() == writer.dmc_stage_text(n), "run: python usd/make_cartpole.py"
+
+
+@pytest.mark.parametrize("num_poles", [2, 3])
+def test_a_chain_stacks_identical_poles_hinge_on_top(num_poles):
+    """dm_control's ``_make_model(n)``: pole k (k >= 2) is the first pole's copy, its hinge 1 m up the pole below
+    (``pos="0 0 1"``), about the same axis, and its body starts where that hinge is."""
+    stage = Usd.Stage.Open(str(STAGE.with_name(f"cartpole_dmc_{num_poles}poles.usda")))
+    first = UsdPhysics.MassAPI(stage.GetPrimAtPath("/cartpole/pole"))
+    for k in range(2, num_poles + 1):
+        body = stage.GetPrimAtPath(f"/cartpole/pole{k}")
+        mass = UsdPhysics.MassAPI(body)
+        assert (mass.GetMassAttr().Get(), mass.GetCenterOfMassAttr().Get(), mass.GetDiagonalInertiaAttr().Get()) == (
+            first.GetMassAttr().Get(), first.GetCenterOfMassAttr().Get(), first.GetDiagonalInertiaAttr().Get())
+        joint = UsdPhysics.RevoluteJoint(stage.GetPrimAtPath(f"/cartpole/pole{k}Joint"))
+        below = "/cartpole/pole" if k == 2 else f"/cartpole/pole{k - 1}"
+        assert [str(t) for t in joint.GetBody0Rel().GetTargets()] == [below]
+        assert [str(t) for t in joint.GetBody1Rel().GetTargets()] == [f"/cartpole/pole{k}"]
+        assert joint.GetAxisAttr().Get() == "X" and tuple(joint.GetLocalPos0Attr().Get()) == (0.0, 0.0, 1.0)
+        origin = UsdGeom.Xformable(body).ComputeLocalToWorldTransform(Usd.TimeCode.Default()).ExtractTranslation()
+        assert tuple(origin) == pytest.approx((0.0, 0.0, k - 1.0))
 
 
 def test_stage_schemas_and_facts():

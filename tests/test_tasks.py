@@ -4,6 +4,7 @@ unknown one, and a task defined outside the package (one module's worth: setting
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import gymnasium as gym
 import pytest
@@ -12,8 +13,8 @@ import warp as wp
 
 from cartpole_warp import tasks
 from cartpole_warp.config import ConfigError, NonNegative
-from cartpole_warp.env import END_NONE, TaskFunctions, kernel_params
 from cartpole_warp.evaluation import rollout
+from cartpole_warp.kernels import END_NONE, TaskFunctions
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runner import CartpoleRunner
 from cartpole_warp.tasks.cartpole import CartpoleConfig, CartTaskEnv
@@ -21,10 +22,12 @@ from cartpole_warp.wrappers.gymnasium import register_envs
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
-def test_the_registry_finds_the_three_tasks_and_names_the_known_ones():
-    assert tasks.names()[:3] == ["cartpole-balance", "cart-double-pole-balance", "cartpole-swingup"]
+def test_the_registry_finds_every_task_and_names_the_known_ones():
+    assert tasks.names() == ["cartpole-balance", "cart-double-pole-balance", "cart-three-pole-swingup",
+                             "cart-two-pole-swingup", "cartpole-balance-sparse", "cartpole-swingup",
+                             "cartpole-swingup-sparse"]
     with pytest.raises(ConfigError, match="unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
-                                          "cart-double-pole-balance, cartpole-swingup"):
+                                          "cart-double-pole-balance, cart-three-pole-swingup, "):
         tasks.make("cartpole-moonwalk")
     balance, swingup, double = (tasks.make(name, num_envs=2) for name in
                                 ("cartpole-balance", "cartpole-swingup", "cart-double-pole-balance"))
@@ -68,21 +71,19 @@ class HoldStillConfig(CartpoleConfig):
     """Cart force (N) for action 1."""
 
 
-Params = kernel_params(HoldStillConfig)
-
 
 @wp.func
-def observe(q: wp.vec2, qd: wp.vec2, p: Params):
+def observe(q: wp.vec2, qd: wp.vec2, p: Any):
     return wp.vec3(q[0], qd[0], qd[1])
 
 
 @wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Params):
+def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
     return wp.exp(-q[0] * q[0] - qd[1] * qd[1]), END_NONE
 
 
 @wp.func
-def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
+def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Any):
     s = rng_state[env]
     start = wp.vec2(wp.randf(s, -0.5, 0.5), wp.pi)
     rng_state[env] = s
@@ -90,7 +91,7 @@ def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
 
 
 @wp.func
-def joint_forces(action: wp.types.vector(1, float), p: Params):
+def joint_forces(action: wp.types.vector(1, float), p: Any, forces: wp.vec2):
     return wp.vec2(p.max_push_effort_n * action[0], 0.0)
 
 
@@ -98,7 +99,6 @@ class HoldStillEnv(CartTaskEnv):
     """observation (N, 3) [cart_pos, cart_vel, pole_vel]; reward exp(-cart_pos^2 - pole_vel^2); never terminates."""
 
     config_class = HoldStillConfig
-    params_type = Params
     num_obs = 3
     stage = "cartpole_dmc.usda"
     functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=joint_forces)

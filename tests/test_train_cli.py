@@ -326,7 +326,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--num-envs", "4000000", "--env.randomization.action-delay-steps", "1000"],
      "error: randomization.action_delay_steps=1000 with num_envs=4,000,000 is an action history of 4,004,000,000"),
     (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
-                                      "cart-double-pole-balance, cartpole-swingup"),
+                                      "cart-double-pole-balance, cart-three-pole-swingup, cart-two-pole-swingup, "
+                                      "cartpole-balance-sparse, cartpole-swingup, cartpole-swingup-sparse"),
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):

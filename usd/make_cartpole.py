@@ -1,7 +1,9 @@
-"""Write the cartpole stages, authored with UsdPhysics schemas: ``usd/cartpole.usda`` (the classic Isaac cartpole)
-and ``usd/cartpole_dmc.usda`` (dm_control's cartpole, the model of its ``swingup`` task).
+"""Write the cartpole stages, authored with UsdPhysics schemas: ``usd/cartpole.usda`` (the classic Isaac cartpole),
+``usd/cartpole_dmc.usda`` (dm_control's cartpole, the model of its ``swingup`` task) and
+``usd/cartpole_dmc_<n>poles.usda`` for n = 2, 3 (dm_control's ``_make_model(n_poles)``: a chain of n identical poles,
+each hinged at the top of the one below, the model of its ``two_poles`` and ``three_poles`` tasks).
 
-Run: ``python usd/make_cartpole.py`` writes both next to this script; ``python usd/make_cartpole.py out.usda
+Run: ``python usd/make_cartpole.py`` writes them next to this script; ``python usd/make_cartpole.py out.usda
 [out_dmc.usda]`` writes the classic stage (and the dm_control one) elsewhere.
 
 Both stages follow one convention, so the same loader and the same closed-form check apply: up axis Z, metres,
@@ -23,9 +25,12 @@ modelled: the joint dampings (slider 5e-4 N s/m, hinge 2e-6 N m s/rad), the slid
 (a critically damped limit spring of Newton's stands for it: ``DMC_LIMIT_STIFFNESS_N_M``),
 the actuator (a motor of gear 10 with ``ctrlrange="-1 1"``, i.e. up to 10 N on the cart: the env applies the force),
 the timestep (0.01 s, RK4), and the two decorative rail capsules (radius 0.02 m, 4 m long, 0.14 m apart), for which
-one 0.04 x 4 x 0.04 m box stands.
+one 0.04 x 4 x 0.04 m box stands. In a chain, pole k (body ``pole<k>``, joint ``pole<k>Joint`` about X, k >= 2) hinges
+1 m above pole k-1's hinge, where dm_control puts ``pole_<k>`` (``pos="0 0 1"``); dm_control disables contacts, and
+Newton's scenes here compute none, so the poles pass through each other as there.
 """
 
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass
@@ -147,6 +152,10 @@ class Cartpole:
     """Newton's ``newton:limitStiffness`` of the slider's limits (None: Newton's default, 1e4 N/m, with 10 N s/m)."""
     cart_limit_damping_n_s_m: float | None = None
     """Newton's ``newton:limitDamping`` of the slider's limits."""
+    num_poles: int = 1
+    """Poles in a chain, each ``pole_spacing_m`` above the one below (its hinge at the other's top)."""
+    pole_spacing_m: float = 1.0
+    """From one pole's hinge to the next one's (m), along the pole."""
 
 
 CLASSIC = Cartpole(rail=Box(RAIL_SIZE_M), cart=Box(CART_SIZE_M), cart_mass_kg=CART_MASS_KG, pole=Box(POLE_SIZE_M),
@@ -196,8 +205,9 @@ def build_stage(spec: Cartpole = CLASSIC):
     hinge = (spec.hinge_offset_from_cart_m, 0, 0)
     rail = _body(stage, "/cartpole/rail", (0, 0, 0), spec.rail, (0, 0, 0), RAIL_MASS_KG, spec.colors["rail"])
     cart = _body(stage, "/cartpole/cart", (0, 0, 0), spec.cart, (0, 0, 0), spec.cart_mass_kg, spec.colors["cart"])
-    pole = _body(stage, "/cartpole/pole", hinge, spec.pole, (0, 0, spec.pole_com_above_hinge_m), spec.pole_mass_kg,
-                 spec.colors["pole"])
+    poles = [_body(stage, f"/cartpole/{pole_name(k)}", (hinge[0], 0, (k - 1) * spec.pole_spacing_m), spec.pole,
+                   (0, 0, spec.pole_com_above_hinge_m), spec.pole_mass_kg, spec.colors["pole"])
+             for k in range(1, spec.num_poles + 1)]
 
     fixed = UsdPhysics.FixedJoint.Define(stage, "/cartpole/railJoint")
     fixed.CreateBody1Rel().SetTargets([rail.GetPath()])
@@ -214,13 +224,19 @@ def build_stage(spec: Cartpole = CLASSIC):
         prim.CreateAttribute("newton:limitDamping", Sdf.ValueTypeNames.Float).Set(spec.cart_limit_damping_n_s_m)
         prim.CreateAttribute("mjc:solreflimit", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(*MUJOCO_SOLREFLIMIT))
 
-    pole_joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/poleJoint")
-    pole_joint.CreateBody0Rel().SetTargets([cart.GetPath()])
-    pole_joint.CreateBody1Rel().SetTargets([pole.GetPath()])
-    pole_joint.CreateAxisAttr(UsdPhysics.Tokens.x)
-    pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge))
-    pole_joint.CreateLocalPos1Attr(Gf.Vec3f(0.0, 0.0, 0.0))
+    for k, (parent, pole) in enumerate(zip([cart, *poles], poles), start=1):
+        pole_joint = UsdPhysics.RevoluteJoint.Define(stage, f"/cartpole/{pole_name(k)}Joint")
+        pole_joint.CreateBody0Rel().SetTargets([parent.GetPath()])
+        pole_joint.CreateBody1Rel().SetTargets([pole.GetPath()])
+        pole_joint.CreateAxisAttr(UsdPhysics.Tokens.x)
+        pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge) if k == 1 else Gf.Vec3f(0.0, 0.0, spec.pole_spacing_m))
+        pole_joint.CreateLocalPos1Attr(Gf.Vec3f(0.0, 0.0, 0.0))
     return stage
+
+
+def pole_name(k: int) -> str:
+    """The body of the k-th pole from the cart (1-based): ``pole``, ``pole2``, ``pole3``, ... (its joint: + Joint)."""
+    return "pole" if k == 1 else f"pole{k}"
 
 
 def stage_text(spec: Cartpole = CLASSIC):
@@ -229,15 +245,20 @@ def stage_text(spec: Cartpole = CLASSIC):
     return stage.GetRootLayer().ExportToString()
 
 
-def dmc_stage_text():
-    """dm_control's cartpole stage as USDA text, exactly as ``main`` writes it."""
-    return stage_text(DMC)
+def dmc_stage_text(num_poles: int = 1):
+    """dm_control's cartpole stage with a chain of ``num_poles`` poles as USDA text, exactly as ``main`` writes it."""
+    return stage_text(dataclasses.replace(DMC, num_poles=num_poles, pole_spacing_m=DMC_POLE_LENGTH_M))
+
+
+CHAINS = (2, 3)
+"""The pole counts of the chain stages (``cartpole_dmc_<n>poles.usda``)."""
 
 
 def main():
     here = Path(__file__).parent
-    outs = [Path(arg) for arg in sys.argv[1:3]] or [here / "cartpole.usda", here / "cartpole_dmc.usda"]
-    for out, text in zip(outs, (stage_text(), dmc_stage_text())):
+    outs = [Path(arg) for arg in sys.argv[1:3]] or [here / "cartpole.usda", here / "cartpole_dmc.usda",
+                                                    *(here / f"cartpole_dmc_{n}poles.usda" for n in CHAINS)]
+    for out, text in zip(outs, (stage_text(), dmc_stage_text(), *(dmc_stage_text(n) for n in CHAINS))):
         out.write_text(text)
         print(f"wrote {out}")
 

@@ -1,12 +1,14 @@
 """The task registry: every module in this folder that calls ``register(Task(...))`` is a task, found by name.
 
     import cartpole_warp
-    cartpole_warp.tasks.names()   # ['cartpole-balance', 'cart-double-pole-balance', 'cartpole-swingup']
+    cartpole_warp.tasks.names()   # ['cartpole-balance', 'cart-double-pole-balance', ..., 'cartpole-swingup-sparse']
     env = cartpole_warp.tasks.make("cartpole-swingup", num_envs=4096, device="cpu", seed=0)
 
 A task module (``balance.py``, ``swingup.py``, ``double_pole.py``) holds the task's spec docstring, its ``TaskConfig``
 subclass, its Warp functions, its ``BatchedEnv`` subclass and one ``register(Task(...))`` call: adding a task is adding
-a module here (plus its stage and presets if it has them). Machinery reaches tasks only through this registry.
+a module here (plus its stage and presets if it has them). A variant (``balance_sparse.py``, ``swingup_sparse.py``,
+``pole_chain.py``) replaces what differs in its parent's functions, env class and ``Task``. Machinery reaches tasks only
+through this registry.
 """
 
 from __future__ import annotations

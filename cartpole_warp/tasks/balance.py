@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import warp as wp
 
 from ..config import Finite, NonNegative, Positive, require
-from ..env import END_NONE, FIRST_TASK_END, TaskFunctions, kernel_params
+from ..kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from . import SolvedRule, Task, register
 from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 
@@ -53,16 +54,14 @@ class BalanceConfig(CartpoleConfig):
                 f"{self.max_pole_angle_rad:g} (else episodes end as they start)")
 
 
-Params = kernel_params(BalanceConfig)
-
 
 @wp.func
-def observe(q: wp.vec2, qd: wp.vec2, p: Params):
+def observe(q: wp.vec2, qd: wp.vec2, p: Any):
     return wp.vec4(q[0], qd[0], q[1], qd[1])
 
 
 @wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Params):
+def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
     end = END_NONE
     if wp.abs(q[0]) > p.reset_dist_m:
         end = CART_OUT
@@ -76,7 +75,7 @@ def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Para
 
 
 @wp.func
-def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
+def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Any):
     s = rng_state[env]
     cart_pos = wp.randf(s, -p.reset_cart_pos_m, p.reset_cart_pos_m)
     cart_vel = wp.randf(s, -p.reset_cart_vel_m_s, p.reset_cart_vel_m_s)
@@ -103,7 +102,6 @@ class CartpoleBalanceEnv(CartTaskEnv):
     """
 
     config_class = BalanceConfig
-    params_type = Params
     num_obs = 4
     obs_mirror = (-1.0,) * 4
     stage = "cartpole.usda"

@@ -27,10 +27,29 @@ class CartpoleConfig(TaskConfig):
 
 
 @wp.func
-def push_cart(action: wp.types.vector(1, float), p: Any):
-    """``TaskFunctions.joint_forces`` of a cart-pole task: max_push_effort_n * action on the cart, nothing on the pole
-    (generic over the task's params struct)."""
-    return wp.vec2(p.max_push_effort_n * action[0], 0.0)
+def push_cart(action: Any, p: Any, forces: Any):
+    """``TaskFunctions.joint_forces`` of every cart task: max_push_effort_n * action on the cart (the first joint role),
+    nothing on the poles, whatever their number (generic over the task's params struct and joint vector)."""
+    f = forces
+    f[0] = p.max_push_effort_n * action[0]
+    return f
+
+
+SPARSE_CART_RANGE_M = wp.constant(0.25)
+SPARSE_MIN_COSINE = wp.constant(0.995)
+
+
+@wp.func
+def sparse_reward(q: Any):
+    """dm_control's sparse cart-pole reward (``Balance._get_reward(sparse=True)``): 1 while the cart is within 0.25 m
+    of the centre and every pole's cosine in the world is at least 0.995 (within 5.7 degrees of upright), else 0. ``q``
+    holds the cart's position, then each pole's angle relative to the one below."""
+    inside = wp.abs(q[0]) <= SPARSE_CART_RANGE_M
+    world = float(0.0)  # noqa: UP018 (a Warp variable the loop changes, not a constant)
+    for k in range(1, len(q)):
+        world += q[k]
+        inside = inside and wp.cos(world) >= SPARSE_MIN_COSINE
+    return wp.where(inside, 1.0, 0.0)
 
 
 class CartTaskEnv(BatchedEnv):

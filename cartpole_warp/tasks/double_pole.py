@@ -9,13 +9,14 @@ import importlib.util
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import warp as wp
 
 from ..config import Finite, Name, NonNegative, Positive, require
-from ..env import END_NONE, FIRST_TASK_END, TaskFunctions, kernel_params
+from ..kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartTaskEnv
+from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 TIP_FELL = wp.constant(FIRST_TASK_END + 1)
@@ -28,13 +29,10 @@ class DoublePoleConfig(CartpoleConfig):
     """A cart with two poles in a chain: joints, cart force, pole lengths, reward, termination and reset ranges."""
 
     cart_joint: Name = "railCartJoint"
-    """The stage's prismatic joint that moves the cart: its name, or its full prim path where the name repeats."""
     pole_joint: Name = "cartPoleJoint"
-    """The stage's revolute joint between the cart and pole 1 (joint role 'pole')."""
     pole2_joint: Name = "polePoleJoint"
     """The stage's revolute joint between pole 1 and pole 2 (joint role 'pole2')."""
     max_push_effort_n: NonNegative = 40.0
-    """Cart force (N) for action 1; actions are clipped to [-1, 1] first."""
     pole1_length_m: Positive = 1.0
     """Distance from the first pole's hinge to the second's (m): the stage's, for the tip in the reward."""
     pole2_length_m: Positive = 1.0
@@ -75,11 +73,9 @@ class DoublePoleConfig(CartpoleConfig):
                 f"task.min_tip_height_m={self.min_tip_height_m:g} (else episodes end as they start)")
 
 
-Params = kernel_params(DoublePoleConfig)
-
 
 @wp.func
-def tip(q: wp.vec3, p: Params):
+def tip(q: wp.vec3, p: Any):
     """The second pole's tip: (position along the rail (m), height above the cart's hinge (m)). A pole angle turns
     about +X with the rail along Y (Newton's stage): a positive angle leans the pole toward -Y."""
     absolute2 = q[1] + q[2]
@@ -89,12 +85,12 @@ def tip(q: wp.vec3, p: Params):
 
 
 @wp.func
-def observe(q: wp.vec3, qd: wp.vec3, p: Params):
+def observe(q: wp.vec3, qd: wp.vec3, p: Any):
     return wp.types.vector(q[0], q[1], q[2], qd[0], qd[1], qd[2], length=6, dtype=float)
 
 
 @wp.func
-def evaluate(q: wp.vec3, qd: wp.vec3, action: wp.types.vector(1, float), p: Params):
+def evaluate(q: wp.vec3, qd: wp.vec3, action: wp.types.vector(1, float), p: Any):
     along, height = tip(q, p)
     end = END_NONE
     if wp.abs(q[0]) > p.reset_dist_m:
@@ -108,7 +104,7 @@ def evaluate(q: wp.vec3, qd: wp.vec3, action: wp.types.vector(1, float), p: Para
 
 
 @wp.func
-def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
+def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Any):
     s = rng_state[env]
     q = wp.vec3(wp.randf(s, -p.reset_cart_pos_m, p.reset_cart_pos_m),
                 wp.randf(s, -p.reset_pole_angle_rad, p.reset_pole_angle_rad),
@@ -117,11 +113,6 @@ def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
                  wp.randf(s, -p.reset_vel, p.reset_vel))
     rng_state[env] = s
     return q, qd
-
-
-@wp.func
-def push_cart(action: wp.types.vector(1, float), p: Params):
-    return wp.vec3(p.max_push_effort_n * action[0], 0.0, 0.0)
 
 
 class CartDoublePoleEnv(CartTaskEnv):
@@ -149,7 +140,6 @@ class CartDoublePoleEnv(CartTaskEnv):
     """
 
     config_class = DoublePoleConfig
-    params_type = Params
     num_obs = 6
     obs_mirror = (-1.0,) * 6
     stage = NEWTON_STAGE

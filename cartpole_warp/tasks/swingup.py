@@ -3,13 +3,15 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import warp as wp
 
 from ..config import Finite, NonNegative, Positive
-from ..env import END_NONE, TaskFunctions, kernel_params
+from ..kernels import END_NONE, TaskFunctions
 from . import SolvedRule, Task, register
 from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 
@@ -18,8 +20,7 @@ from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 class SwingupConfig(CartpoleConfig):
     """dm_control's swing-up: a pole that starts hanging down, a smooth reward for holding it up at the centre."""
 
-    max_push_effort_n: NonNegative = 10.0
-    """Cart force (N) for action 1 (dm_control's motor gear); actions are clipped to [-1, 1] first."""
+    max_push_effort_n: NonNegative = 10.0  # dm_control's motor gear
     center_margin_m: Positive = 2.0
     """``centered`` = (1 + tolerance(cart_pos, margin)) / 2 (m)."""
     control_margin: Positive = 1.0
@@ -29,11 +30,12 @@ class SwingupConfig(CartpoleConfig):
     reset_pole_angle_rad: Finite = math.pi
     """Resets start the pole at this angle (pi: hanging down) plus noise (rad)."""
     reset_noise: NonNegative = 0.01
-    """Standard deviation of the Gaussian noise added to every joint position and velocity at reset (m, rad, m/s,
-    rad/s)."""
+    """Standard deviation of the Gaussian noise added at reset to the cart's position, the first pole's angle and
+    every joint velocity (m, rad, m/s, rad/s)."""
+    reset_chain_noise_rad: NonNegative = 0.1
+    """With more than one pole: standard deviation of each further pole's angle from the one below at reset
+    (dm_control's 0.1 rad)."""
 
-
-Params = kernel_params(SwingupConfig)
 
 GAUSSIAN_SCALE = wp.constant(math.sqrt(-2.0 * math.log(0.1)))
 """dm_control ``rewards.tolerance``'s gaussian sigmoid with its default value_at_margin 0.1."""
@@ -54,29 +56,62 @@ def quadratic_tolerance(x: float, margin: float):
     return wp.max(1.0 - d * d, 0.0)
 
 
-@wp.func
-def observe(q: wp.vec2, qd: wp.vec2, p: Params):
-    return wp.types.vector(q[0], wp.cos(q[1]), wp.sin(q[1]), qd[0], qd[1], length=5, dtype=float)
+def swingup_functions(num_poles: int) -> TaskFunctions:
+    """The swing-up's functions for a cart with a chain of ``num_poles`` poles (dm_control's ``Balance(swing_up=True)``
+    on ``_make_model(num_poles)``): joints [cart, pole 1 on the cart, pole 2 on pole 1, ...], each pole's angle
+    relative to the one below (as its joint measures it), so pole k's angle in the world is the sum of the first k."""
+    Joints = wp.types.vector(num_poles + 1, float)
+    Obs = wp.types.vector(3 * num_poles + 2, float)
+    func = functools.partial(wp.func, name=f"swingup_{num_poles}_poles")  # one Warp key per pole count
+
+    @func
+    def observe(q: Any, qd: Any, p: Any):
+        """[cart_pos, cos and sin of each pole's world angle, cart_vel, each pole joint's velocity]."""
+        o = Obs()
+        o[0] = q[0]
+        world = float(0.0)  # noqa: UP018 (a Warp variable the loop changes, not a constant)
+        for k in range(num_poles):
+            world += q[k + 1]
+            o[1 + 2 * k] = wp.cos(world)
+            o[2 + 2 * k] = wp.sin(world)
+        for j in range(num_poles + 1):
+            o[1 + 2 * num_poles + j] = qd[j]
+        return o
+
+    @func
+    def evaluate(q: Any, qd: Any, action: Any, p: Any):
+        """upright (mean over the poles) * centered * small_control * small_velocity (of the slowest-scoring pole)."""
+        upright, world, small_velocity = float(0.0), float(0.0), float(1.0)  # noqa: UP018 (changed by the loop)
+        for k in range(num_poles):
+            world += q[k + 1]
+            upright += (wp.cos(world) + 1.0) / 2.0
+            small_velocity = wp.min(small_velocity, tolerance(qd[k + 1], p.velocity_margin_rad_s))
+        upright = upright / float(num_poles)
+        centered = (1.0 + tolerance(q[0], p.center_margin_m)) / 2.0
+        small_control = (4.0 + quadratic_tolerance(action[0], p.control_margin)) / 5.0
+        return upright * centered * small_control * ((1.0 + small_velocity) / 2.0), END_NONE
+
+    @func
+    def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Any):
+        """The cart and pole 1 (down, at ``reset_pole_angle_rad``) with ``reset_noise``, every further pole at
+        ``reset_chain_noise_rad`` from the one below; every velocity ``reset_noise``."""
+        s = rng_state[env]
+        q, qd = Joints(), Joints()
+        q[0] = p.reset_noise * wp.randn(s)
+        q[1] = p.reset_pole_angle_rad + p.reset_noise * wp.randn(s)
+        for k in range(2, num_poles + 1):
+            q[k] = p.reset_chain_noise_rad * wp.randn(s)
+        for j in range(num_poles + 1):
+            qd[j] = p.reset_noise * wp.randn(s)
+        rng_state[env] = s
+        return q, qd
+
+    return TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=push_cart)
 
 
-@wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Params):
-    upright = (wp.cos(q[1]) + 1.0) / 2.0
-    centered = (1.0 + tolerance(q[0], p.center_margin_m)) / 2.0
-    small_control = (4.0 + quadratic_tolerance(action[0], p.control_margin)) / 5.0
-    small_velocity = (1.0 + tolerance(qd[1], p.velocity_margin_rad_s)) / 2.0
-    return upright * centered * small_control * small_velocity, END_NONE
-
-
-@wp.func
-def sample_reset(rng_state: wp.array(dtype=wp.uint32), env: int, p: Params):
-    s = rng_state[env]
-    cart_pos = p.reset_noise * wp.randn(s)
-    pole_angle = p.reset_pole_angle_rad + p.reset_noise * wp.randn(s)
-    cart_vel = p.reset_noise * wp.randn(s)
-    pole_vel = p.reset_noise * wp.randn(s)
-    rng_state[env] = s
-    return wp.vec2(cart_pos, pole_angle), wp.vec2(cart_vel, pole_vel)
+def swingup_obs_mirror(num_poles: int) -> tuple[float, ...]:
+    """The mirror signs of ``swingup_functions(num_poles)``'s observation: positions, sines and velocities flip."""
+    return (-1.0, *(1.0, -1.0) * num_poles, *(-1.0,) * (num_poles + 1))
 
 
 class CartpoleSwingupEnv(CartTaskEnv):
@@ -99,12 +134,10 @@ class CartpoleSwingupEnv(CartTaskEnv):
     """
 
     config_class = SwingupConfig
-    params_type = Params
     num_obs = 5
-    obs_mirror = (-1.0, 1.0, -1.0, -1.0, -1.0)
+    obs_mirror = swingup_obs_mirror(1)
     stage = "cartpole_dmc.usda"
-    functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset,
-                              joint_forces=push_cart)
+    functions = swingup_functions(1)
 
 
 TASK = register(Task(

@@ -1,0 +1,29 @@
+"""cartpole-swingup-sparse: dm_control's ``cartpole.swingup_sparse``, the swing-up (``swingup.py``) rewarded 1 only
+while the cart is within 0.25 m of the centre and the pole within 5.7 degrees of upright, else 0."""
+
+import dataclasses
+from typing import Any
+
+import warp as wp
+
+from ..kernels import END_NONE
+from . import SolvedRule, register, swingup
+from .cartpole import sparse_reward
+
+
+@wp.func
+def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
+    return sparse_reward(q), END_NONE
+
+
+class CartpoleSwingupSparseEnv(swingup.CartpoleSwingupEnv):
+    """``CartpoleSwingupEnv`` with reward ``cartpole.sparse_reward``: 1 in the band, else 0."""
+
+    functions = dataclasses.replace(swingup.CartpoleSwingupEnv.functions, evaluate=evaluate)
+
+
+register(dataclasses.replace(
+    swingup.TASK, name="cartpole-swingup-sparse", env_class=CartpoleSwingupSparseEnv,
+    summary="swing the pole up, rewarded only in dm_control's sparse band (its swingup_sparse)",
+    solved=SolvedRule(min_reward_per_step=0.5, full_episodes_only=True),
+    gym_ids={"cartpole_warp/CartpoleSwingupSparse-v0": None}))
