@@ -12,12 +12,30 @@ import textwrap
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
 
 import tyro
 
 Args = TypeVar("Args")
+
+
+@dataclass
+class ViserArgs:
+    """Where ``--viewer viser`` serves its page (train.py and play.py alike), and what it shows."""
+
+    host: str = "127.0.0.1"
+    """--viewer viser: the address the page is served on; 0.0.0.0 serves it to every network this machine is on,
+    where anyone who reaches the port can watch and pause the run."""
+    port: int = 8080
+    """--viewer viser: the page's port."""
+    viewer_envs: int = 16
+    """--viewer viser: how many envs the page shows, in a grid."""
+
+    def problem(self) -> str | None:
+        """What is wrong with these values, in one line (None: nothing)."""
+        return None if self.viewer_envs >= 1 else f"--viewer-envs must be >= 1, got {self.viewer_envs}"
 
 
 def process_age_s() -> float | None:

@@ -21,10 +21,12 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Generic, Literal
+from typing import TYPE_CHECKING, Annotated, Generic, Literal
+
+import tyro
 
 from . import tasks
-from .cli import asks_help, clean_errors, parse, peek, quiet_libraries
+from .cli import ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
 from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
 from .files import write_text
 from .rl.config import TrainConfig, checked, train_config
@@ -62,13 +64,7 @@ class PlayArgs(Generic[TaskT]):
     viewer: Viewer = "window"
     """window: Newton's OpenGL viewer (a display and the viz extra); viser: a web page served by this process (the
     viser extra); none: --headless."""
-    host: str = "127.0.0.1"
-    """--viewer viser: the address the page is served on; 0.0.0.0 serves it to every network this machine is on, where
-    anyone who reaches the port can watch and pause the run."""
-    port: int = 8080
-    """--viewer viser: the page's port."""
-    viewer_envs: int = 16
-    """--viewer viser: how many envs the page shows, in a grid."""
+    viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
     record_viser: bool = False
     """--headless: also write <output>/cartpole.viser, a replay for viser's static player (the viser extra; Newton's
     viser viewer records only while it serves, so a server runs on a free local port meanwhile)."""
@@ -141,25 +137,31 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     cfg.env = args.env
     if args.viewer == "none":
         args.headless = True
-    require(args.viewer_envs >= 1, f"--viewer-envs must be >= 1, got {args.viewer_envs}")
+    require(args.viser.problem() is None, args.viser.problem())
     if args.eval:
-        require(args.headless, "--eval runs headless: add --headless")
-        require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
-        require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
-        require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
-        envs = peek(argv, num_envs=None, **{"env.num_envs": None})
-        require(envs.num_envs is None and getattr(envs, "env.num_envs") is None,
-                "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs")
-        axes = args.grid(cfg.task_spec.env_class.joint_roles)
-        names = [axis.name for axis in axes]
-        require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
-        require(all(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)) for axis in axes),
-                "every --grid-*-factors list needs finite factors >= 0")
-        cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
-        delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
-        require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")
-        cfg.env.randomization = RandomizationConfig(at="startup", action_delay_steps=int(max(delays, default=0)))
+        grid_envs(args, cfg, argv)
     return args, checked(cfg).validate(), checkpoint
+
+
+def grid_envs(args: PlayArgs, cfg: TrainConfig, argv: list[str]):
+    """--eval: the grid's checks, and the envs it plays in ``cfg.env`` (episodes of every cell, the largest action
+    delay it asks for)."""
+    require(args.headless, "--eval runs headless: add --headless")
+    require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
+    require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
+    require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
+    envs = peek(argv, num_envs=None, **{"env.num_envs": None})
+    require(envs.num_envs is None and getattr(envs, "env.num_envs") is None,
+            "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs")
+    axes = args.grid(cfg.task_spec.env_class.joint_roles)
+    names = [axis.name for axis in axes]
+    require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
+    require(all(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)) for axis in axes),
+            "every --grid-*-factors list needs finite factors >= 0")
+    cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
+    delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
+    require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")
+    cfg.env.randomization = RandomizationConfig(at="startup", action_delay_steps=int(max(delays, default=0)))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -224,7 +226,8 @@ def view(args: PlayArgs, env, policy: Policy) -> int:
     if args.viewer == "viser":
         from .viz.web import view_in_browser
 
-        steps = view_in_browser(env, policy, args.host, args.port, args.viewer_envs, max_steps=args.steps,
+        viser = args.viser
+        steps = view_in_browser(env, policy, viser.host, viser.port, viser.viewer_envs, max_steps=args.steps,
                                 on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True))
     else:
         from .viz.viewer import view_interactively

@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import gc
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Generic, Literal
 
 import tyro
 
 from . import tasks
-from .cli import asks_help, clean_errors, parse, peek, process_age_s, quiet_libraries, with_default_value
+from .cli import ViserArgs, asks_help, clean_errors, parse, peek, process_age_s, quiet_libraries, with_default_value
 from .config import ConfigError, TaskT, require
 from .presets import presets
 from .rl.config import TrainConfig, checked, train_config
@@ -48,12 +48,7 @@ class TrainArgs(Generic[TaskT]):
     viewer: Literal["none", "viser"] = "none"
     """viser: watch the training envs in a browser (the viser extra), drawn between iterations at most 1/20 of the
     time (nothing is imported or drawn without it)."""
-    host: str = "127.0.0.1"
-    """--viewer viser: the address the page is served on (0.0.0.0: every network this machine is on)."""
-    port: int = 8080
-    """--viewer viser: the page's port."""
-    viewer_envs: int = 16
-    """--viewer viser: how many envs the page shows."""
+    viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
 
 
 def task_list() -> str:
@@ -97,7 +92,7 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     cls = TrainArgs[type(base.env.task)]
     args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}")
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
-    require(args.viewer_envs >= 1, f"--viewer-envs must be >= 1, got {args.viewer_envs}")
+    require(args.viser.problem() is None, args.viser.problem())
     cfg = checked(args.cfg).validate()
     return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint, args
 
@@ -124,22 +119,14 @@ def main(argv: list[str] | None = None) -> int:
 
         if not ranks.distributed and cfg.env.device != "cpu" and not torch.cuda.is_available():  # before the build
             raise ConfigError(NO_CUDA.format(cfg.env.device))
-        say = print if ranks.writes else (lambda *args, **kwargs: None)
-        where = f"{ranks.world_size} GPUs" if ranks.distributed else cfg.env.device
-        say(f"building {cfg.env.num_envs} envs on {where}...", flush=True)
-        training = None
+        if ranks.writes:
+            print(f"building {cfg.env.num_envs} envs on "
+                  f"{f'{ranks.world_size} GPUs' if ranks.distributed else cfg.env.device}...", flush=True)
+        training, summary = None, None
         try:
             training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)
-            say(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
-            say(f"ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
-                f"{training.solved_definition}", flush=True)
-            if args.viewer == "viser" and ranks.writes:
-                from .viz.web import TrainingView
-
-                view = TrainingView(training.env.env, args.host, args.port, args.viewer_envs,
-                                    stopping=lambda: training.runner.stop_requested is not None)
-                training.runner.on_iteration = view
-                say(f"watch it at {view.url}", flush=True)
+            if ranks.writes:
+                announce(training, args, run_dir, checkpoint)
             summary = training.run()
         finally:
             if training is not None and training.runner.on_iteration is not None:
@@ -148,6 +135,31 @@ def main(argv: list[str] | None = None) -> int:
                 torch.distributed.destroy_process_group()
     if summary is None:
         return 130 if training.runner.stop_reason == "interrupted" else 0
+    report(summary, run_dir, checkpoint)
+    if argv is None:
+        gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
+    total = process_age_s() if argv is None else None
+    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
+    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
+    return 130 if summary.status == "interrupted" else 0
+
+
+def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
+    """The lines of a built run (its folder, its set-up time, the solved rule), and the browser view where asked."""
+    print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
+    print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
+          flush=True)
+    if args.viewer == "viser":
+        from .viz.web import TrainingView
+
+        view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
+                            stopping=lambda: training.runner.stop_requested is not None)
+        training.runner.on_iteration = view
+        print(f"watch it at {view.url}", flush=True)
+
+
+def report(summary, run_dir: Path, checkpoint: Path | None):
+    """The end of a run: what it did, when it was solved, where its artefacts are."""
     resumed = (f" of training over all its processes, {summary.timing_s['training']:.1f} s in this one"
                if checkpoint is not None else "")
     print(f"{summary.status}: {summary.iterations} iterations, {summary.env_steps:,} env steps in "
@@ -160,12 +172,6 @@ def main(argv: list[str] | None = None) -> int:
         print("not solved yet: train longer (--max-iterations, or --resume)")
     print(f"artefacts in {run_dir}: {summary.checkpoint}, summary.json, learning_curve.png, "
           f"{', '.join(summary.exports)}\nwatch it: python play.py --headless --run {run_dir}")
-    if argv is None:
-        gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
-    total = process_age_s() if argv is None else None
-    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
-    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
-    return 130 if summary.status == "interrupted" else 0
 
 
 if __name__ == "__main__":
