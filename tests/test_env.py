@@ -1,21 +1,15 @@
-"""Batched env machinery, for every registered task: autoreset, truncation, capture, sharding, seeding, sizes, bad
-input, set_state, close; and the balance task's own failures, config checks and stage errors."""
+"""Batched env machinery (``env.py`` and ``kernels.py``), for every registered task: autoreset, truncation, capture,
+sharding, seeding, sizes, bad input, set_state, close; config checks where an env is made."""
 
 import math
-import re
-from pathlib import Path
 
-import newton
 import pytest
 import torch
-from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
 from cartpole_warp.config import MAX_EPISODE_LENGTH
-from cartpole_warp.files import data_path
 from cartpole_warp.kernels import COMMON_ENDS
 from cartpole_warp.runtime import shard_bounds
-from cartpole_warp.scene import JointRole, pick_joint
 
 TASKS = cartpole_warp.tasks.names()
 SHORT_EPISODES = {"episode_length_s": 0.5}
@@ -350,21 +344,6 @@ def test_set_state_validates_and_masks(task, make, device):
         env.set_state(states, mask[:3])
 
 
-def test_set_state_of_the_balance_task_is_its_observation(make, device):
-    """Balance observes the state itself: [cart_pos, cart_vel, pole_angle, pole_vel]."""
-    env = make(4)
-    states = torch.arange(16, dtype=torch.float32, device=device).reshape(4, 4) / 100
-    assert torch.equal(env.set_state(states), states)
-
-
-def write_stage_with_renamed_joint(path):
-    stage = Usd.Stage.Open(str(data_path("usd", "cartpole.usda")))
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    UsdPhysics.RevoluteJoint(stage.GetPrimAtPath("/cartpole/poleJoint")).GetPrim().SetActive(False)
-    stage.GetRootLayer().Save()
-
-
 @pytest.mark.parametrize(
     "kwargs, message",
     [
@@ -405,103 +384,6 @@ def test_unknown_task_and_other_tasks_keys_are_named(device):
         cartpole_warp.tasks.make("cartpole-swingup", num_envs=2, device=device, task={"reset_dist_m": 3.0})
 
 
-def test_malformed_stage_and_missing_joint(tmp_path, device):
-    garbage = tmp_path / "garbage.usda"
-    garbage.write_text("#usda 1.0\nthis is not usd {")
-    with pytest.raises(cartpole_warp.StageError, match="cannot load USD stage"):
-        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(garbage)})
-    renamed = tmp_path / "no_pole_joint.usda"
-    write_stage_with_renamed_joint(renamed)
-    with pytest.raises(cartpole_warp.StageError, match=re.escape(f"stage {renamed}: no joint named 'poleJoint' for the "
-                                                                 "pole joint (set task.pole_joint)")):
-        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(renamed)})
-    with pytest.raises(cartpole_warp.StageError, match=re.escape(f"stage {data_path('usd', 'cartpole.usda')}: no "
-                                                                 "joint named 'hinge' for the pole joint")):
-        cartpole_warp.make_env(num_envs=2, device=device, task={"pole_joint": "hinge"})
-
-
-def test_the_stages_of_one_and_two_poles_are_refused_by_the_other_task(device):
-    """Each task names what it found in the other's stage: the double pole's three joints on the single-pole stage
-    (no 'railCartJoint'), the single pole's two on Newton's double-pendulum stage (a third joint that moves)."""
-    newton_stage = cartpole_warp.tasks.get("cart-double-pole-balance").env_class.stage
-    with pytest.raises(cartpole_warp.StageError, match=re.escape(
-            f"stage {data_path('usd', 'cartpole.usda')}: no joint named 'railCartJoint' for the cart joint (set "
-            "task.cart_joint); its joints: /cartpole/cartJoint, /cartpole/poleJoint")):
-        cartpole_warp.tasks.make("cart-double-pole-balance", num_envs=2, device=device,
-                                 sim={"stage_path": str(data_path("usd", "cartpole.usda"))})
-    with pytest.raises(cartpole_warp.StageError, match=re.escape(
-            f"stage {newton_stage}: only the cart and pole joints may move, but it also has /cartPole/polePoleJoint "
-            "(revolute)")):
-        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": str(newton_stage)},
-                               task={"cart_joint": "railCartJoint", "pole_joint": "cartPoleJoint"})
-
-
-def edited_stage(path, edit):
-    """Our stage, exported to ``path`` and changed by ``edit(stage)``."""
-    stage = Usd.Stage.Open(str(data_path("usd", "cartpole.usda")))
-    stage.GetRootLayer().Export(str(path))
-    stage = Usd.Stage.Open(str(path))
-    edit(stage)
-    stage.GetRootLayer().Save()
-    return str(path)
-
-
-def revolute_cart_joint(stage):
-    stage.RemovePrim("/cartpole/cartJoint")
-    joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/cartJoint")
-    joint.CreateBody0Rel().SetTargets(["/cartpole/rail"])
-    joint.CreateBody1Rel().SetTargets(["/cartpole/cart"])
-    joint.CreateAxisAttr("X")
-
-
-def spherical_pole_joint(stage):
-    stage.RemovePrim("/cartpole/poleJoint")
-    joint = UsdPhysics.SphericalJoint.Define(stage, "/cartpole/poleJoint")
-    joint.CreateBody0Rel().SetTargets(["/cartpole/cart"])
-    joint.CreateBody1Rel().SetTargets(["/cartpole/pole"])
-    joint.CreateLocalPos0Attr((0.12, 0.0, 0.0))
-
-
-def swinging_rail(stage):
-    stage.RemovePrim("/cartpole/railJoint")
-    joint = UsdPhysics.RevoluteJoint.Define(stage, "/cartpole/railJoint")
-    joint.CreateBody1Rel().SetTargets(["/cartpole/rail"])
-    joint.CreateAxisAttr("Z")
-
-
-@pytest.mark.parametrize("edit, message", [
-    (lambda stage: UsdGeom.SetStageMetersPerUnit(stage, 0.01), "metersPerUnit=0.01"),
-    (lambda stage: UsdPhysics.SetStageKilogramsPerUnit(stage, 0.001), "kilogramsPerUnit=0.001"),
-    (revolute_cart_joint, "the cart joint /cartpole/cartJoint of .* is revolute; it must be prismatic"),
-    (spherical_pole_joint, "the pole joint /cartpole/poleJoint of .* is ball; it must be revolute"),
-    (swinging_rail, "only the cart and pole joints may move, but it also has /cartpole/railJoint \\(revolute\\)"),
-])
-def test_stages_the_task_cannot_use_are_named(tmp_path, device, edit, message):
-    stage = edited_stage(tmp_path / "edited.usda", edit)
-    with pytest.raises(cartpole_warp.StageError, match=message) as error:
-        cartpole_warp.make_env(num_envs=2, device=device, sim={"stage_path": stage})
-    assert stage in str(error.value), "every stage error names the file"
-
-
-def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
-    labels = ["/a/slide", "/b/slide", "/a/hinge"]
-
-    def role(name, cart=False):
-        if cart:
-            return JointRole("cart", name, newton.JointType.PRISMATIC, "task.cart_joint")
-        return JointRole("pole", name, newton.JointType.REVOLUTE, "task.pole_joint")
-
-    path = Path("robot.usda")
-    assert pick_joint(labels, role("hinge"), path) == 2
-    assert pick_joint(labels, role("/b/slide", cart=True), path) == 1
-    with pytest.raises(cartpole_warp.StageError, match="stage robot.usda: 2 joints match 'slide' for the cart joint: "
-                                                       "/a/slide, /b/slide; give task.cart_joint the full prim path"):
-        pick_joint(labels, role("slide", cart=True), path)
-    with pytest.raises(cartpole_warp.StageError, match=r"stage robot.usda: no joint named 'wheel' for the pole joint "
-                                                       r"\(set task.pole_joint\); its joints: /a/slide"):
-        pick_joint(labels, role("wheel"), path)
-
-
 @pytest.mark.parametrize("task", TASKS)
 def test_the_longest_time_limit_the_counters_hold_still_truncates(task, make, device):
     env_dt = cartpole_warp.tasks.env_config(task).sim.env_dt
@@ -513,30 +395,6 @@ def test_the_longest_time_limit_the_counters_hold_still_truncates(task, make, de
     env.episode_length_buf = torch.full((2,), MAX_EPISODE_LENGTH - 1, dtype=torch.int32, device=device)
     _, _, terminated, truncated, info = env.step(zero_actions(env))
     assert truncated.all() and not terminated.any() and (info["episode_length"] == 2).all()
-
-
-def test_balance_states_beyond_the_limits_end_for_that_reason(make, device):
-    """Balance only (the swing-up has no failures): a state beyond the limits ends with the failure reward and the
-    failure's reason, also when the physics then turns non-finite (reward 0); other envs run on."""
-    env = make(5)
-    assert env.end_reasons == ("running", "time_limit", "nonfinite_state", "diverged_state", "cart_out_of_range",
-                               "pole_fell")
-    states = torch.tensor([[3.5, 0.0, 0.0, 0.0], [-3.5, 0.0, 0.3, 0.0], [0.0, 0.0, 3.0, 0.0], [3.5, 0.0, 0.0, 0.0],
-                           [0.2, 0.1, 0.05, -0.1]], device=device)
-    start = env.set_state(states)
-    qd = env.scene.state_0.joint_qd
-    values = qd.numpy()
-    values[3 * env.scene.dofs_per_env + env.scene.role_dofs[1]] = math.nan
-    qd.assign(values)
-    _, reward, terminated, truncated, info = env.step(zero_actions(env))
-    reasons = [env.end_reasons[code] for code in info["end_reason"].tolist()]
-    assert reasons == ["cart_out_of_range", "cart_out_of_range", "pole_fell", "cart_out_of_range", "running"]
-    assert terminated.tolist() == [True] * 4 + [False] and not truncated.any()
-    assert reward[:3].tolist() == [-2.0] * 3, "the failure reward"
-    assert float(reward[3]) == 0.0 and int(info["nonfinite_states"]) == 1, "a non-finite state is rewarded 0"
-    assert 0.0 < float(reward[4]) <= 1.0
-    assert torch.isfinite(info["final_obs"]).all() and torch.equal(info["final_obs"][3], start[3])
-    assert (env.get_observations()[:4].abs() <= torch.tensor([1.0, 0.5, math.pi / 8, math.pi / 4], device=device)).all()
 
 
 @pytest.mark.parametrize("task", TASKS)

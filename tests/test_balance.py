@@ -1,5 +1,5 @@
-"""Tutorial parity of the cartpole-balance task (balance-only: the swing-up is checked against dm_control in
-test_swingup.py): reward, termination and reset ranges, checked against the tutorial's own formulas."""
+"""cartpole-balance (``tasks/balance.py``): tutorial parity of its reward, termination and reset ranges, checked
+against the tutorial's own formulas; its state and failures."""
 
 import math
 
@@ -78,3 +78,34 @@ def test_resets_fall_in_the_tutorial_ranges_and_cover_them(make):
     for k in range(4):
         hist = torch.histc(samples[:, k], bins=10, min=-bounds[k].item(), max=bounds[k].item())
         assert (hist > 0.8 * len(samples) / 10).all(), f"component {k} is not uniform: {hist}"
+
+
+def test_set_state_of_the_balance_task_is_its_observation(make, device):
+    """Balance observes the state itself: [cart_pos, cart_vel, pole_angle, pole_vel]."""
+    env = make(4)
+    states = torch.arange(16, dtype=torch.float32, device=device).reshape(4, 4) / 100
+    assert torch.equal(env.set_state(states), states)
+
+
+def test_balance_states_beyond_the_limits_end_for_that_reason(make, device):
+    """Balance only (the swing-up has no failures): a state beyond the limits ends with the failure reward and the
+    failure's reason, also when the physics then turns non-finite (reward 0); other envs run on."""
+    env = make(5)
+    assert env.end_reasons == ("running", "time_limit", "nonfinite_state", "diverged_state", "cart_out_of_range",
+                               "pole_fell")
+    states = torch.tensor([[3.5, 0.0, 0.0, 0.0], [-3.5, 0.0, 0.3, 0.0], [0.0, 0.0, 3.0, 0.0], [3.5, 0.0, 0.0, 0.0],
+                           [0.2, 0.1, 0.05, -0.1]], device=device)
+    start = env.set_state(states)
+    qd = env.scene.state_0.joint_qd
+    values = qd.numpy()
+    values[3 * env.scene.dofs_per_env + env.scene.role_dofs[1]] = math.nan
+    qd.assign(values)
+    _, reward, terminated, truncated, info = env.step(torch.zeros(5, 1, device=device))
+    reasons = [env.end_reasons[code] for code in info["end_reason"].tolist()]
+    assert reasons == ["cart_out_of_range", "cart_out_of_range", "pole_fell", "cart_out_of_range", "running"]
+    assert terminated.tolist() == [True] * 4 + [False] and not truncated.any()
+    assert reward[:3].tolist() == [-2.0] * 3, "the failure reward"
+    assert float(reward[3]) == 0.0 and int(info["nonfinite_states"]) == 1, "a non-finite state is rewarded 0"
+    assert 0.0 < float(reward[4]) <= 1.0
+    assert torch.isfinite(info["final_obs"]).all() and torch.equal(info["final_obs"][3], start[3])
+    assert (env.get_observations()[:4].abs() <= torch.tensor([1.0, 0.5, math.pi / 8, math.pi / 4], device=device)).all()

@@ -1,0 +1,133 @@
+"""Training configs (``rl/config.py``, ``presets.py``, ``agent.py``): precedence of defaults, presets and flags,
+bad presets, the checks that relate fields, every field in ``--help-all``, the rsl-rl ``train_cfg`` it makes."""
+
+import ast
+import contextlib
+import dataclasses
+import inspect
+import io
+
+import pytest
+from rsl_rl.utils import resolve_callable
+
+from cartpole_warp import tasks
+from cartpole_warp.config import ConfigError
+from cartpole_warp.rl.config import RunnerConfig, train_config
+from cartpole_warp.rl.runner import to_rsl_rl
+from cartpole_warp.train import resolve
+from cartpole_warp.wrappers.rsl_rl import mirror
+
+
+def test_preset_then_flags_override_the_dataclass_defaults(tmp_path):
+    preset = tmp_path / "p.yaml"
+    preset.write_text("env:\n  num_envs: 64\nagent:\n  max_iterations: 7\n  algorithm:\n    entropy_coef: 0.02\n")
+    cfg = train_config(preset=str(preset))
+    assert (cfg.env.num_envs, cfg.agent.algorithm.entropy_coef, cfg.agent.max_iterations) == (64, 0.02, 7)
+    cfg, run_dir, checkpoint = resolve(["--config", str(preset), "--agent.algorithm.entropy-coef", "0.03",
+                                        "--agent.actor.hidden-dims", "16", "8", "--env.task.episode-length-s", "None",
+                                        "--log-dir", str(tmp_path), "--run-name", "x"])
+    assert cfg.agent.algorithm.entropy_coef == 0.03 and cfg.agent.actor.hidden_dims == [16, 8]
+    assert cfg.env.task.episode_length_s is None and cfg.env.num_envs == 64 and cfg.agent.max_iterations == 7
+    assert run_dir.parent == tmp_path / "rsl_rl" / "cartpole-balance" and run_dir.name.endswith("_x")
+    assert checkpoint is None and not run_dir.exists()
+    assert train_config().agent.algorithm.entropy_coef == 0.005
+
+
+@pytest.mark.parametrize("yaml_text, message", [
+    ("agent:\n  algorithm:\n    entropy: 0.1\n", "unknown config key 'agent.algorithm.entropy'; valid keys here: "),
+    ("agent:\n  max_iterations: many\n", "agent.max_iterations: Input should be a valid integer"),
+    ("env:\n  sim:\n    solver: bullet\n", "env.sim.solver: Input should be 'featherstone' or 'mujoco'"),
+    ("no_such_section: 1\n", "unknown config key 'no_such_section'"),
+    ("env:\n  num_envs: true\n", "env.num_envs: Input should be a valid integer"),
+    ("agent:\n  algorithm:\n    gamma: 2.0\n", "agent.algorithm.gamma: Input should be less than or equal to 1"),
+    ("- a list\n", "expected a mapping at the top level"),
+])
+def test_bad_presets_name_the_key(tmp_path, yaml_text, message):
+    preset = tmp_path / "bad.yaml"
+    preset.write_text(yaml_text)
+    with pytest.raises(ConfigError, match=message):
+        train_config(preset=str(preset))
+
+
+def test_a_preset_with_several_bad_keys_names_every_one(tmp_path):
+    preset = tmp_path / "bad.yaml"
+    preset.write_text("env:\n  num_env: 8\n  sim:\n    solver: bullet\nagent:\n  max_iteration: 5\n")
+    for build in (lambda: train_config(preset=str(preset)),
+                  lambda: tasks.env_config("cartpole-balance", str(preset))):
+        with pytest.raises(ConfigError) as err:
+            build()
+        for key in ("'agent.max_iteration'", "'env.num_env'", "env.sim.solver: Input should be"):
+            assert key in str(err.value)
+        assert "\n" not in str(err.value)
+
+
+def test_validate_rejects_mini_batches_that_do_not_divide_the_rollout():
+    cfg = train_config()
+    cfg.env.num_envs, cfg.agent.num_steps_per_env, cfg.agent.algorithm.num_mini_batches = 3, 3, 4
+    with pytest.raises(ConfigError, match="num_mini_batches"):
+        cfg.validate()
+
+
+def field_docs(cls) -> dict[str, str]:
+    """The docstring under each field of a dataclass (read here with ast, independently of tyro)."""
+    docs = {}
+    for klass in reversed(cls.__mro__[:-1]):
+        body = ast.parse(inspect.getsource(klass)).body[0].body
+        for node, after in zip(body, body[1:]):
+            documented = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+            if isinstance(node, ast.AnnAssign) and documented:
+                docs[node.target.id] = " ".join(after.value.value.split())
+    return docs
+
+
+def leaf_fields(cfg, prefix=""):
+    """(flag, docstring) of every non-dataclass field of a config tree (read from the instance: generic fields hold
+    the task's settings)."""
+    docs = field_docs(type(cfg))
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from leaf_fields(value, f"{prefix}{f.name}.")
+        else:
+            yield f"--{prefix}{f.name}".replace("_", "-"), docs.get(f.name)
+
+
+@pytest.mark.parametrize("task", tasks.names())
+def test_help_all_lists_every_config_field_with_its_docstring_and_the_tasks(task):
+    help_text = io.StringIO()
+    with contextlib.redirect_stdout(help_text), pytest.raises(SystemExit) as exit_code:
+        resolve(["--task", task, "--help-all"])
+    assert exit_code.value.code == 0
+    text = " ".join(help_text.getvalue().replace("│", " ").split())
+    fields = list(leaf_fields(train_config(task)))
+    assert len(fields) > 40
+    for flag, doc in fields:
+        assert doc, f"{flag} has no docstring"
+        assert flag in text, flag
+        assert " ".join(doc.split()[:4]) in text, f"{flag}: its docstring is not in --help"
+    for flag in ("--num-envs", "--device", "--seed", "--max-iterations", "--run-name", "--log-dir", "--config",
+                 "--resume", "--checkpoint", "--logger", "--stop-when-solved", "--task"):
+        assert flag in text, flag
+    for name in tasks.names():
+        assert f"{name} {tasks.get(name).summary}" in text, f"--help lists the task {name}"
+
+
+def test_runner_config_is_rsl_rl_train_cfg():
+    cfg = to_rsl_rl(RunnerConfig())
+    assert cfg["algorithm"]["class_name"] == "cartpole_warp.rl.ppo:SyncFreePPO"
+    assert cfg["algorithm"]["entropy_coef"] == 0.005
+    assert cfg["actor"]["class_name"] == cfg["critic"]["class_name"] == "MLPModel"
+    assert cfg["actor"]["hidden_dims"] == [32, 32] and cfg["actor"]["distribution_cfg"] == {
+        "class_name": "cartpole_warp.rl.ppo:SyncFreeGaussian", "init_std": 1.0}
+    assert cfg["num_steps_per_env"] == 8 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
+    assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
+    assert to_rsl_rl(RunnerConfig(logger="none"))["logger"]["class_name"].endswith(":NullLogWriter")
+    assert "symmetry_cfg" not in cfg["algorithm"], "no mirror, no symmetry"
+    symmetry = to_rsl_rl(RunnerConfig(), mirror=True)["algorithm"]["symmetry_cfg"]
+    assert resolve_callable(symmetry["data_augmentation_func"]) is mirror and symmetry["use_data_augmentation"]
+    isaac_lab = train_config(preset="isaac_lab").agent
+    assert to_rsl_rl(isaac_lab)["algorithm"]["class_name"] == "PPO"
+    assert to_rsl_rl(isaac_lab)["actor"]["distribution_cfg"]["class_name"] == "GaussianDistribution"
+    assert (isaac_lab.num_steps_per_env, isaac_lab.algorithm.num_learning_epochs, isaac_lab.algorithm.num_mini_batches,
+            isaac_lab.algorithm.desired_kl) == (16, 5, 4, 0.01)
+    assert isaac_lab.actor.activation == isaac_lab.critic.activation == "elu", "Isaac Lab's cartpole uses ELU"

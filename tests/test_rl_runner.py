@@ -1,0 +1,88 @@
+"""The runner (``rl/runner.py``): random episode starts, the phase clock, the policy play loads, the progress line."""
+
+import time
+
+import pytest
+import torch
+
+import cartpole_warp
+from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.rl.runs import (
+    RunError,
+)
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
+
+
+@pytest.mark.parametrize("spread", [False, True])
+def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
+    cfg = train_config()
+    cfg.env.num_envs, cfg.env.task.episode_length_s, cfg.agent.num_steps_per_env = 64, 0.1, 12
+    torch.manual_seed(0)
+    env = RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=0, task={"episode_length_s": 0.1}))
+    runner = CartpoleRunner(env, cfg, None)
+    runner.learn(1, init_at_random_ep_len=spread)
+    first = runner.progress.history[0]
+    assert first["time_limit_fraction"] > 0.95, "a 6-step limit ends nearly every episode by time"
+    if spread:
+        assert first["mean_episode_length"] < 5.5, "first episodes cut short by their random counters say so"
+    else:
+        assert first["mean_episode_length"] > 5.8
+
+
+def test_phase_clock_times_each_phase_on_its_device(device):
+    """On the CPU the host clock; on a GPU CUDA events, which time the device's work, not the host's queueing."""
+    from cartpole_warp.streams import PhaseClock
+
+    if device.startswith("cuda"):
+        matrix = torch.randn(4096, 4096, device=device)
+
+        def work(units):
+            for _ in range(units):
+                matrix @ matrix
+    else:
+        def work(units):
+            time.sleep(0.01 * units)
+    clock = PhaseClock(device, phases=2)
+    clock.mark(0)
+    work(1)
+    clock.mark(1)
+    work(20)
+    clock.mark(2)
+    first, second = clock.seconds()
+    assert 0 < first < second and second > 5 * first
+
+
+def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path):
+    """``load_policy`` (play's, no runner or optimizer) builds the actor as rsl-rl does: the same actions as the
+    runner's policy for the same checkpoint, and a clear error for networks that do not fit."""
+    from cartpole_warp.rl.runner import load_policy
+
+    cfg = train_config()
+    cfg.env.num_envs = 16
+    env = RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0))
+    torch.manual_seed(0)
+    runner = CartpoleRunner(env, cfg, None)
+    runner.learn(2)
+    runner.save(str(tmp_path / "model.pt"))
+    obs = torch.randn(16, env.env.num_obs)
+    with torch.inference_mode():
+        assert torch.equal(load_policy(env, cfg.agent, tmp_path / "model.pt")(obs), runner.policy()(obs))
+    cfg.agent.actor.hidden_dims = [8]
+    with pytest.raises(RunError, match="does not match the configured networks"):
+        load_policy(env, cfg.agent, tmp_path / "model.pt")
+
+
+def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(capsys):
+    """A balancing policy ends no episode for many iterations; its console row says the envs are still running and
+    for how long, not only that nothing finished."""
+    cfg = train_config()
+    cfg.env.num_envs, cfg.agent.num_steps_per_env = 16, 2
+    torch.manual_seed(0)
+    runner = CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
+    runner.learn(2)
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
+    dt = cfg.env.sim.env_dt
+    assert [row.split(" | ")[1].strip() for row in rows] == [
+        f"no episode ended; 16 running, {2 * dt:5.2f} s in on average",
+        f"no episode ended; 16 running, {4 * dt:5.2f} s in on average"], rows

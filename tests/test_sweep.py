@@ -1,0 +1,42 @@
+"""The sweep (``tools/sweep.py``): variants as train.py flags, failed runs unsolved, a seed repeated exactly in one
+process."""
+
+
+import torch
+
+from cartpole_warp.train import resolve
+
+
+def test_sweep_variants_are_train_flags_and_failed_runs_count_as_unsolved():
+    from cartpole_warp.tools.sweep import RunResult, seed_row, table, variant_flags
+
+    flags = variant_flags("config=isaac_lab agent.no-cuda-graph agent.actor.hidden-dims=64,64")
+    assert flags == ["--config", "isaac_lab", "--agent.no-cuda-graph", "--agent.actor.hidden-dims", "64", "64"]
+    cfg, _, _ = resolve(flags)
+    agent = cfg.agent
+    assert (agent.cuda_graph, agent.actor.hidden_dims, agent.algorithm.class_name) == (False, [64, 64], "PPO")
+    results = [RunResult("a=1", 0, 50, 1.0, 100, 3.0, 4.5, 0.98, 0.99, 2, 0.31),
+               RunResult("a=1", 1, None, None, None, error="x"), RunResult("b", 0, None, None, 50)]
+    rows = table(results, ["a=1", "b"], seeds=2, task="cartpole-balance").splitlines()
+    assert "play: time_limit_fraction (min)" in rows[0]
+    assert rows[2:] == ["| `--a 1` | 1/2 (1 failed) | 50 / 50 | 1.0 / 1.0 | 3.0 + 4.5 | 100 | 0.990 |",
+                        "| `--b` | 0/2 | - | - | - | 50 | - |"]
+    assert [seed_row(r) for r in results] == ["| `--a 1` | 0 | 50 | 1.0 | 3.0 + 4.5 | 100 | 2, 0.3 | 0.980 | 0.990 |",
+                                              "| `--a 1` | 1 | failed | - | - | - | - | - | - |",
+                                              "| `--b` | 0 | not solved | - | - | 50 | - | - | - |"]
+
+
+def test_a_sweep_in_one_process_repeats_a_seed_exactly_and_plays_it(tmp_path, capsys):
+    """Runs in the sweep's own process leave nothing behind that changes the next: the same seed twice gives the same
+    networks, and play's metric appears next to the run's."""
+    from cartpole_warp.tools.sweep import main
+
+    assert main(["--seeds", "3", "3", "--num-envs", "64", "--max-iterations", "3", "--play",
+                 "--log-dir", str(tmp_path)]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| (default) | 3 |")]
+    assert len(rows) == 2 and rows[0].split("|")[-2].strip() != "-", rows
+    checkpoints = sorted(tmp_path.rglob("model_2.pt"))
+    assert len(checkpoints) == 2
+    first, second = (torch.load(path, weights_only=False) for path in checkpoints)
+    for name, value in first["actor_state_dict"].items():
+        assert torch.equal(value, second["actor_state_dict"][name]), name
