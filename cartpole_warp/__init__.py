@@ -8,13 +8,13 @@
 
 Tasks live in ``tasks/`` (one module each, found by the registry ``cartpole_warp.tasks``); the rest is machinery that
 knows no task: ``config.py`` (the config engine), ``scene.py`` (USD -> Newton), ``env.py`` (``BatchedEnv``),
-``runtime.py`` (devices, shards, graphs), ``streams.py`` (torch and Warp on CUDA), ``wrappers/`` (rsl-rl, gymnasium,
-SB3), ``evaluation.py`` (policy rollouts and episode statistics), ``viz/`` (pictures), ``rl/`` (training with rsl-rl)
-and ``tools/`` (benchmarks).
+``kernels.py`` (its Warp kernels), ``runtime.py`` (devices, shards, graphs), ``streams.py`` (torch and Warp on CUDA),
+``wrappers/`` (rsl-rl, gymnasium, SB3), ``evaluation.py`` (policy rollouts and episode statistics), ``viz/``
+(pictures), ``rl/`` (training with rsl-rl) and ``tools/`` (benchmarks).
 
 Importing the package registers every task's gymnasium ids (``cartpole_warp/Cartpole-v0``,
-``cartpole_warp/CartpoleTutorial-v0``, ``cartpole_warp/CartpoleSwingup-v0``, ``cartpole_warp/CartDoublePole-v0``:
-``cartpole_warp.wrappers.gymnasium.env_ids()``). DESIGN.md (in the repository) has the layers and the task seam.
+``cartpole_warp/CartpoleSwingup-v0``, ... one or more per task: ``cartpole_warp.wrappers.gymnasium.env_ids()`` lists
+them). DESIGN.md (in the repository) has the layers and the task seam.
 """
 
 from . import tasks
