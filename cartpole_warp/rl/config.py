@@ -75,8 +75,9 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> T
     settings (flags may still change it: ``validate`` after them)."""
     env = tasks.env_config(task, preset)
     cls = TrainConfig[type(env.task)]
-    rest = {key: value for key, value in tasks.get(task).defaults.items() if key != "env"}
-    data = merge(dataclasses.asdict(cls(env=env, task=task)), rest)
+    base = cls(env=env, task=task)
+    rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
+    data = merge(dataclasses.asdict(base), rest)
     if preset is not None:
         preset_data = {key: value for key, value in load_preset(preset, task).items() if key != "env"}
         data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
@@ -84,9 +85,11 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> T
 
 
 def load_train_config(data: dict, where: str) -> TrainConfig:
-    """A saved TrainConfig (a run's ``config.yaml``) from its dict: the task it names picks the settings' class."""
+    """A saved TrainConfig (a run's ``config.yaml``) from its dict: the task it names picks the settings' class, and
+    its defaults fill any field the file lacks (one written before the field existed)."""
     task = overrides_dict(data, f"{where}:").get("task", tasks.DEFAULT_TASK)
-    return from_dict(TrainConfig[tasks.get(task).env_class.config_class], data, where)
+    base = train_config(task)
+    return from_dict(TrainConfig[type(base.env.task)], merge(dataclasses.asdict(base), data), where)
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",
