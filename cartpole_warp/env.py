@@ -5,8 +5,9 @@ One env step: clip actions to [-1, 1] -> joint forces of the task (of the action
 with domain randomization) -> ``decimation`` solver steps (each after the joints' friction) -> observe, reward and end
 reason of the task -> time limit, returns and lengths, keep the final observation -> masked reset of the ended envs
 from the task's reset sampler -> new physics for them (``randomization``). All of it is Warp work on persistent arrays,
-captured once as a graph per CPU shard (or on CUDA) and replayed. The kernels are built from the task's functions once
-per task (Warp closures) and compiled into one module per task.
+captured once as a graph per CPU shard (or on CUDA) and replayed. The kernels (``kernels.py``) are built from the
+task's functions once per task and compiled into one Warp module per task; this module holds their buffers, launches
+and the torch side (input checks, views, info).
 """
 
 import abc
