@@ -3,7 +3,9 @@
 Tests run on the CPU; ``CARTPOLE_TEST_DEVICE=cuda:0 pytest`` runs the env tests on a GPU instead.
 """
 
+import contextlib
 import importlib
+import io
 import logging
 import os
 import shutil
@@ -30,24 +32,26 @@ def repo() -> Path:
     return Path(__file__).resolve().parent.parent
 
 
-@pytest.fixture
-def run_main(capsys):
-    """``run_main(script, *args)``: ``cartpole_warp.<script>.main(args)`` (train or play) in the test process, as the
-    script calls it; a ``CompletedProcess`` of its exit code and output, like a run of the script without the seconds
-    a fresh process spends importing Newton and torch."""
-
-    def run(script: str, *args) -> subprocess.CompletedProcess:
-        main = importlib.import_module(f"cartpole_warp.{script}").main
+def call_main(script: str, *args) -> subprocess.CompletedProcess:
+    """``cartpole_warp.<script>.main(args)`` (train or play) in the test process, as the script calls it; a
+    ``CompletedProcess`` of its exit code and output, like a run of the script without the seconds a fresh process
+    spends importing Newton and torch."""
+    main = importlib.import_module(f"cartpole_warp.{script}").main
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             code = main([str(arg) for arg in args])
         except SystemExit as stop:
             code = stop.code
         finally:
-            logging.getLogger("cartpole_warp").handlers.clear()  # bound to this test's captured stdout
-        out = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out.out, out.err)
+            logging.getLogger("cartpole_warp").handlers.clear()  # bound to this call's stdout
+    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
 
-    return run
+
+@pytest.fixture
+def run_main():
+    """``run_main(script, *args)``: ``call_main``, as a fixture."""
+    return call_main
 
 
 @pytest.fixture

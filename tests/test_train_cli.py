@@ -18,6 +18,7 @@ import onnx
 import pytest
 import torch
 import yaml
+from conftest import call_main
 from onnx.reference import ReferenceEvaluator
 from PIL import Image
 
@@ -42,11 +43,12 @@ def only_run(log_dir, experiment=tasks.DEFAULT_TASK):
 
 @pytest.fixture(scope="module", params=tasks.names())
 def trained(request, tmp_path_factory):
-    """A 2-iteration run of train.py with 64 envs, for every task."""
+    """A 2-iteration run of train.py with 64 envs, for every task (its ``main`` in this process: test_promises.py and
+    the slow tests run the script in a fresh one)."""
     log_dir = tmp_path_factory.mktemp("logs")
     task = request.param
-    result = run_script("train.py", "--task", task, *SMALL, "--max-iterations", "2", "--run-name", "ci", "--log-dir",
-                        log_dir)
+    result = call_main("train", "--task", task, *SMALL, "--max-iterations", "2", "--run-name", "ci", "--log-dir",
+                       log_dir)
     assert result.returncode == 0, result.stdout + result.stderr
     return log_dir, only_run(log_dir, task), result.stdout
 
