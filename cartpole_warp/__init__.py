@@ -19,9 +19,10 @@ them). DESIGN.md (in the repository) has the layers and the task seam.
 
 from . import tasks
 from .config import ConfigError, EnvConfig, SimConfig, TaskConfig
+from .deprecation import renamed
 from .env import BatchedEnv
 from .scene import StageError
-from .wrappers.gymnasium import CartpoleGymEnv, CartpoleVectorEnv, register_envs
+from .wrappers.gymnasium import TaskGymEnv, TaskVectorEnv, register_envs
 
 
 def make_env(num_envs: int | None = None, device: str | None = None, seed: int | None = None,
@@ -32,5 +33,8 @@ def make_env(num_envs: int | None = None, device: str | None = None, seed: int |
 
 register_envs()
 
-__all__ = ["BatchedEnv", "CartpoleGymEnv", "CartpoleVectorEnv", "ConfigError", "EnvConfig", "SimConfig", "StageError",
+__all__ = ["BatchedEnv", "TaskGymEnv", "TaskVectorEnv", "ConfigError", "EnvConfig", "SimConfig", "StageError",
            "TaskConfig", "make_env", "tasks"]
+
+__getattr__ = renamed(__name__, {"CartpoleGymEnv": "TaskGymEnv", "CartpoleVectorEnv": "TaskVectorEnv"})
+"""The old names (before they said what they serve), for one more release."""

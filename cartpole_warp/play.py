@@ -208,13 +208,13 @@ def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) 
         print(f"policy: {args.agent}")
         return (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
                 else random_policy(env.num_actions, cfg.env.seed))
-    from .rl.runner import CartpoleRunner, load_policy
+    from .rl.runner import TaskRunner, load_policy
     from .wrappers.rsl_rl import RslRlVecEnv
 
     print(f"policy: {checkpoint}")
     if not args.export:
         return load_policy(RslRlVecEnv(env), cfg.agent, checkpoint)
-    runner = CartpoleRunner(RslRlVecEnv(env), cfg, None)
+    runner = TaskRunner(RslRlVecEnv(env), cfg, None)
     runner.load(str(checkpoint), load_cfg={"actor": True})
     for path in runner.export(checkpoint.parent / EXPORT_DIR):
         print(f"exported {path}")

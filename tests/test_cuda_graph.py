@@ -7,7 +7,7 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
@@ -15,7 +15,7 @@ def runner(device, cuda_graph):
     cfg = train_config()
     cfg.env.num_envs, cfg.env.device, cfg.agent.cuda_graph, cfg.stop_when_solved = 4096, device, cuda_graph, True
     torch.manual_seed(0)
-    return CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=4096, device=device, seed=0)), cfg, None)
+    return TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=4096, device=device, seed=0)), cfg, None)
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ import sys
 import pytest
 from stable_baselines3 import PPO
 
-from cartpole_warp import CartpoleGymEnv
+from cartpole_warp import TaskGymEnv
 
 
 def run_example(repo, name, *args, cwd):
@@ -41,7 +41,7 @@ def test_play_example_replays_the_model_like_sb3_on_the_gymnasium_env(repo, trai
     stdout = run_example(repo, "sb3_cartpole_play.py", "--steps", 300, "--seed", 1, cwd=work)
     printed = [(float(r), int(n)) for r, n in re.findall(r"return (-?\d+\.\d), (\d+) steps", stdout)]
 
-    model, env = PPO.load(work / "logs/sb3/ppo_cartpole"), CartpoleGymEnv(preset="tutorial", seed=1)
+    model, env = PPO.load(work / "logs/sb3/ppo_cartpole"), TaskGymEnv(preset="tutorial", seed=1)
     obs, _ = env.reset()
     expected, ret, length = [], 0.0, 0
     for _ in range(300):

@@ -11,7 +11,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
 import cartpole_warp
-from cartpole_warp import CartpoleGymEnv, CartpoleVectorEnv
+from cartpole_warp import TaskGymEnv, TaskVectorEnv
 from cartpole_warp.wrappers.gymnasium import env_ids
 
 TUTORIAL_ID = "cartpole_warp/CartpoleTutorial-v0"
@@ -49,7 +49,7 @@ def test_single_env_passes_check_env(env_id):
     env = gym.make(env_id)
     task, _ = IDS[env_id]
     num_obs = cartpole_warp.tasks.get(task).env_class.num_obs
-    assert isinstance(env.unwrapped, CartpoleGymEnv)
+    assert isinstance(env.unwrapped, TaskGymEnv)
     assert isinstance(env.unwrapped.core, cartpole_warp.tasks.get(task).env_class)
     assert env.observation_space == gym.spaces.Box(-np.inf, np.inf, (num_obs,), np.float32)
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -82,7 +82,7 @@ def test_registered_ids_build_their_presets():
 def test_single_env_matches_batched_env_with_one_env(env_id):
     """A short time limit makes every task end episodes (the swing-up only ever truncates)."""
     task, preset = IDS[env_id]
-    single = CartpoleGymEnv(task_name=task, preset=preset, task=SHORT_EPISODES)
+    single = TaskGymEnv(task_name=task, preset=preset, task=SHORT_EPISODES)
     core = core_env(env_id, 1, task=SHORT_EPISODES)
     obs, _ = single.reset(seed=11)
     core_obs, _ = core.reset(seed=11)
@@ -112,7 +112,7 @@ def test_single_env_matches_batched_env_with_one_env(env_id):
 @pytest.mark.parametrize("env_id", IDS)
 def test_seeded_reset_after_episode_end_is_deterministic(env_id):
     task, preset = IDS[env_id]
-    env = CartpoleGymEnv(task_name=task, preset=preset, task=SHORT_EPISODES)
+    env = TaskGymEnv(task_name=task, preset=preset, task=SHORT_EPISODES)
     first, _ = env.reset(seed=5)
     for _ in range(100):
         _, _, terminated, truncated, _ = env.step(np.ones(1, np.float32))
@@ -130,7 +130,7 @@ def test_vector_env_matches_core_env_step_for_step(env_id):
     num_envs, seed = 32, 9
     venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", task=SHORT_EPISODES)
     core = core_env(env_id, num_envs, task=SHORT_EPISODES)
-    assert isinstance(venv, CartpoleVectorEnv) and isinstance(venv.core, type(core))
+    assert isinstance(venv, TaskVectorEnv) and isinstance(venv.core, type(core))
     assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     assert venv.observation_space.shape == (num_envs, core.num_obs) and venv.action_space.shape == (num_envs, 1)
     obs, info = venv.reset(seed=seed)
@@ -166,7 +166,7 @@ def test_vector_env_matches_core_env_step_for_step(env_id):
 
 @pytest.mark.parametrize("task", cartpole_warp.tasks.names())
 def test_wrong_action_count_is_a_clear_error(task):
-    venv = CartpoleVectorEnv(num_envs=4, task_name=task)
+    venv = TaskVectorEnv(num_envs=4, task_name=task)
     venv.reset(seed=0)
     with pytest.raises(ValueError, match="expected 4 action value"):
         venv.step(np.zeros((3, 1), np.float32))

@@ -7,7 +7,7 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
@@ -23,7 +23,7 @@ def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mix
     cfg.agent.algorithm.num_mini_batches = 8
     cfg.agent.algorithm.num_learning_epochs = 3
     torch.manual_seed(0)
-    return CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=3)), cfg, None)
+    return TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=3)), cfg, None)
 
 
 def collect(runner):

@@ -70,9 +70,9 @@ def test_record_video_around_the_vector_env_draws_only_what_it_records(task, tmp
 
 @pytest.mark.parametrize("task", TASKS)
 def test_sb3_vec_video_recorder(task, tmp_path):
-    from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
+    from cartpole_warp.wrappers.sb3 import TaskSb3VecEnv
 
-    venv = CartpoleSb3VecEnv(cartpole_warp.tasks.make(task, num_envs=8), render_mode="rgb_array")
+    venv = TaskSb3VecEnv(cartpole_warp.tasks.make(task, num_envs=8), render_mode="rgb_array")
     assert venv.render().shape == venv.get_images()[0].shape and len(venv.get_images()) == 8
     venv = VecVideoRecorder(venv, str(tmp_path), record_video_trigger=lambda step: step == 0,
                             video_length=VIDEO_STEPS)

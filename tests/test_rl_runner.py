@@ -7,7 +7,7 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.rl.runs import (
     RunError,
 )
@@ -20,7 +20,7 @@ def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
     cfg.env.num_envs, cfg.env.task.episode_length_s, cfg.agent.num_steps_per_env = 64, 0.1, 12
     torch.manual_seed(0)
     env = RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=0, task={"episode_length_s": 0.1}))
-    runner = CartpoleRunner(env, cfg, None)
+    runner = TaskRunner(env, cfg, None)
     runner.learn(1, init_at_random_ep_len=spread)
     first = runner.progress.history[0]
     assert first["time_limit_fraction"] > 0.95, "a 6-step limit ends nearly every episode by time"
@@ -62,7 +62,7 @@ def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path)
     cfg.env.num_envs = 16
     env = RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0))
     torch.manual_seed(0)
-    runner = CartpoleRunner(env, cfg, None)
+    runner = TaskRunner(env, cfg, None)
     runner.learn(2)
     runner.save(str(tmp_path / "model.pt"))
     obs = torch.randn(16, env.env.num_obs)
@@ -79,7 +79,7 @@ def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(caps
     cfg = train_config()
     cfg.env.num_envs, cfg.agent.num_steps_per_env = 16, 2
     torch.manual_seed(0)
-    runner = CartpoleRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
+    runner = TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
     runner.learn(2)
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
     dt = cfg.env.sim.env_dt

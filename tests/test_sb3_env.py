@@ -10,9 +10,9 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
 import cartpole_warp
-from cartpole_warp import CartpoleGymEnv
+from cartpole_warp import TaskGymEnv
 from cartpole_warp.wrappers.gymnasium import env_ids
-from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
+from cartpole_warp.wrappers.sb3 import TaskSb3VecEnv
 
 TASKS = cartpole_warp.tasks.names()
 SHORT_EPISODES = {"episode_length_s": 0.2}
@@ -27,7 +27,7 @@ def make_env(task_name, num_envs, **overrides):
 @pytest.mark.parametrize("env_id", env_ids())
 def test_single_gym_env_passes_sb3_check_env(env_id):
     task, preset = env_ids()[env_id]
-    env = CartpoleGymEnv(task_name=task, preset=preset)
+    env = TaskGymEnv(task_name=task, preset=preset)
     sb3_check_env(env, warn=False)
     assert env.observation_space.shape == (env.core.num_obs,)
 
@@ -35,7 +35,7 @@ def test_single_gym_env_passes_sb3_check_env(env_id):
 @pytest.mark.parametrize("task", TASKS)
 def test_vec_env_steps_like_the_core_env_with_sb3_infos(task):
     num_envs, seed = 16, 21
-    venv = CartpoleSb3VecEnv(make_env(task, num_envs, task=SHORT_EPISODES))
+    venv = TaskSb3VecEnv(make_env(task, num_envs, task=SHORT_EPISODES))
     core = make_env(task, num_envs, task=SHORT_EPISODES)
     assert isinstance(venv, VecEnv) and venv.num_envs == num_envs
     assert venv.observation_space.shape == (core.num_obs,) and venv.action_space.shape == (1,)
@@ -75,7 +75,7 @@ def test_vec_env_steps_like_the_core_env_with_sb3_infos(task):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_vec_env_seed_reset_and_errors(task):
-    venv = CartpoleSb3VecEnv(make_env(task, 4))
+    venv = TaskSb3VecEnv(make_env(task, 4))
     venv.seed(3)
     first = venv.reset()
     unseeded = venv.reset()
@@ -90,7 +90,7 @@ def test_vec_env_seed_reset_and_errors(task):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_vec_env_attributes_and_methods_act_on_the_shared_env(task):
-    venv = CartpoleSb3VecEnv(make_env(task, 4))
+    venv = TaskSb3VecEnv(make_env(task, 4))
     limit = cartpole_warp.tasks.env_config(task).max_episode_length
     assert limit == {"cartpole-balance": 600, "cartpole-swingup": 500}.get(task, limit)
     venv.reset()
@@ -109,7 +109,7 @@ def test_vec_env_attributes_and_methods_act_on_the_shared_env(task):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_short_ppo_run_on_vec_env(task):
-    venv = CartpoleSb3VecEnv(make_env(task, 16, task={"episode_length_s": 1.0}))
+    venv = TaskSb3VecEnv(make_env(task, 16, task={"episode_length_s": 1.0}))
     model = PPO("MlpPolicy", venv, n_steps=64, batch_size=256, n_epochs=2, seed=0, device="cpu")
     model.learn(total_timesteps=4096)
     assert model.num_timesteps >= 4096

@@ -101,12 +101,12 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
     assert torch.equal(best["actor_state_dict"]["mlp.0.weight"][0].cpu(), torch.tensor(BALANCING_GAINS))
 
     # what play.py plays: the run's seed, a fresh env of eval.num_envs envs, the best checkpoint's policy
-    from cartpole_warp.rl.runner import CartpoleRunner
+    from cartpole_warp.rl.runner import TaskRunner
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
     cfg = training.cfg
     env = tasks.get(cfg.task).env_class(dataclasses.replace(cfg.env, num_envs=cfg.eval.num_envs))
-    player = CartpoleRunner(RslRlVecEnv(env), cfg, None)
+    player = TaskRunner(RslRlVecEnv(env), cfg, None)
     player.load(str(play_checkpoint(run)), load_cfg={"actor": True})
     played = evaluate(FirstEpisodesRun(env, player.policy()), cfg.env.seed)
     evaluated = history[0]["evaluation"]

@@ -16,7 +16,7 @@ from cartpole_warp.config import ConfigError, NonNegative
 from cartpole_warp.evaluation import rollout
 from cartpole_warp.kernels import END_NONE, TaskFunctions
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import CartpoleRunner
+from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.tasks.cartpole import CartpoleConfig, CartTaskEnv
 from cartpole_warp.wrappers.gymnasium import register_envs
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
@@ -129,7 +129,7 @@ def test_a_task_from_outside_the_package_builds_trains_plays_and_reaches_gymnasi
     cfg = train_config(hold_still)
     cfg.env.num_envs = 64
     assert cfg.experiment == hold_still and cfg.agent.max_iterations == 2
-    runner = CartpoleRunner(RslRlVecEnv(tasks.get(hold_still).env_class(cfg.env)), cfg.validate(), None)
+    runner = TaskRunner(RslRlVecEnv(tasks.get(hold_still).env_class(cfg.env)), cfg.validate(), None)
     runner.learn(2)
     assert runner.progress.iterations == 2
     stats = rollout(env, runner.policy(), steps=60)
@@ -150,3 +150,18 @@ def test_a_misspelt_play_metric_fails_at_registration():
         tasks.register(tasks.Task(name="misspelt", env_class=balance.env_class, solved=balance.solved,
                                   play_metric="time_limit_fractoin", summary="a typo"))
     assert "misspelt" not in tasks.names()
+
+
+@pytest.mark.parametrize("module, old, new", [
+    ("cartpole_warp", "CartpoleGymEnv", "TaskGymEnv"), ("cartpole_warp", "CartpoleVectorEnv", "TaskVectorEnv"),
+    ("cartpole_warp.wrappers.gymnasium", "CartpoleGymEnv", "TaskGymEnv"),
+    ("cartpole_warp.rl.runner", "CartpoleRunner", "TaskRunner"),
+])
+def test_the_old_names_still_work_and_say_the_new_one(module, old, new):
+    import importlib
+
+    loaded = importlib.import_module(module)
+    with pytest.warns(DeprecationWarning, match=f"{module}.{old} is now {new}"):
+        assert getattr(loaded, old) is getattr(loaded, new)
+    with pytest.raises(AttributeError, match="has no attribute 'CartpoleMoonwalk'"):
+        loaded.CartpoleMoonwalk  # noqa: B018

@@ -110,12 +110,12 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
 
 def policy_actions(run, checkpoint: str, obs: np.ndarray) -> np.ndarray:
     """The deterministic actions of ``run``'s ``checkpoint`` for ``obs``, as play.py loads it."""
-    from cartpole_warp.rl.runner import CartpoleRunner
+    from cartpole_warp.rl.runner import TaskRunner
     from cartpole_warp.rl.runs import load_config
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
     cfg = load_config(run)
-    runner = CartpoleRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
+    runner = TaskRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
     runner.load(str(run / checkpoint), load_cfg={"actor": True})
     with torch.inference_mode():
         return runner.policy()(torch.from_numpy(obs)).numpy()

@@ -1,6 +1,6 @@
-"""``CartpoleRunner``: rsl-rl's ``OnPolicyRunner`` with the training loop reporting each iteration, for any task.
+"""``TaskRunner``: rsl-rl's ``OnPolicyRunner`` with the training loop reporting each iteration, for any task.
 
-    runner = CartpoleRunner(RslRlVecEnv(cfg.task_spec.env_class(cfg.env)), cfg, log_dir)
+    runner = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(cfg.env)), cfg, log_dir)
     runner.learn(cfg.agent.max_iterations)     # runner.request_stop() ends it after the current iteration
 
 It overrides, openly, what rsl-rl offers no hook for: ``learn`` (rsl-rl's rollout / returns / update loop, then
@@ -30,6 +30,7 @@ from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
 from ..agent import RunnerConfig
+from ..deprecation import renamed
 from ..env import BatchedEnv
 from ..evaluation import FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
@@ -65,7 +66,7 @@ def in_git_repository(path: str) -> bool:
     return any((parent / ".git").exists() for parent in Path(path).resolve().parents)
 
 
-class CartpoleRunner(OnPolicyRunner):
+class TaskRunner(OnPolicyRunner):
     """OnPolicyRunner for one training run: ``log_dir`` None writes nothing (no metrics, no checkpoints).
 
     With an ``eval_env`` (``cfg.eval.num_envs`` envs of the task, seeded with the run's seed) the deterministic policy
@@ -429,3 +430,6 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False) -> dict:
 def _path(obj) -> str:
     """``module:name``, as rsl-rl's ``resolve_callable`` finds a class or function."""
     return f"{obj.__module__}:{obj.__qualname__}"
+
+__getattr__ = renamed(__name__, {"CartpoleRunner": "TaskRunner"})
+"""The old names (before they said what they serve), for one more release."""

@@ -1,4 +1,4 @@
-"""One training run: the env and ``CartpoleRunner`` built from a ``TrainConfig``, Ctrl-C handling, and the run
+"""One training run: the env and ``TaskRunner`` built from a ``TrainConfig``, Ctrl-C handling, and the run
 folder's artefacts (config, checkpoints, exports, learning curve, ``summary.json``).
 
     training = Training(cfg, run_dir)            # builds the env (compiles Warp kernels on first use)
@@ -21,7 +21,7 @@ from ..runtime import timed
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
-from .runner import CartpoleRunner
+from .runner import TaskRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
 
 
@@ -53,13 +53,13 @@ class Training:
         """Where the run's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); summary.json keeps
         them."""
         self.eval_env = None
-        """The evaluation's envs (the process that writes the run evaluates: ``CartpoleRunner``)."""
+        """The evaluation's envs (the process that writes the run evaluates: ``TaskRunner``)."""
         if ranks.writes:
             with timed(self.timing_s, "eval_env"):
                 self.eval_env = self.task.env_class(dataclasses.replace(env_cfg, num_envs=cfg.eval.num_envs,
                                                                         seed=cfg.env.seed))
         with timed(self.timing_s, "networks"):
-            self.runner = CartpoleRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
+            self.runner = TaskRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
                                          self.run_dir if ranks.writes else None, self.eval_env)
         with timed(self.timing_s, "eval_env"):
             self.runner.prepare_evaluation()

@@ -8,7 +8,7 @@ Times (device-synchronised, means over repeats after three warm-up iterations, b
 its CUDA graphs on a GPU): ``env.step`` alone; one rollout step launched op by op (policy ``act`` + ``env.step`` +
 ``process_env_step`` + episode statistics); one iteration's rollout and returns as training runs them (one graph
 replay on a GPU with ``agent.cuda_graph``); the PPO update as training runs it; whole iterations of
-``CartpoleRunner.learn``.
+``TaskRunner.learn``.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Callable
 import torch
 
 from ..cli import quiet_libraries
-from ..rl.runner import CartpoleRunner
+from ..rl.runner import TaskRunner
 from ..train import resolve
 from ..wrappers.rsl_rl import RslRlVecEnv
 
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
     env = RslRlVecEnv(cfg.task_spec.env_class(cfg.env))
-    runner = CartpoleRunner(env, cfg, None)
+    runner = TaskRunner(env, cfg, None)
     device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg
     runner.learn(3)
     obs = env.get_observations()
@@ -67,8 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     rows[f"rollout of {steps} steps + returns, as training runs it"] = timed_ms(rollout, device, 1)
     rows["update (all mini-batches), as training runs it"] = timed_ms(alg.update, device, 1)
     iterations = 10
-    rows["whole iteration (CartpoleRunner.learn)"] = timed_ms(lambda: runner.learn(iterations), device, 1) / iterations
-    per_iteration = rows["whole iteration (CartpoleRunner.learn)"]
+    rows["whole iteration (TaskRunner.learn)"] = timed_ms(lambda: runner.learn(iterations), device, 1) / iterations
+    per_iteration = rows["whole iteration (TaskRunner.learn)"]
     name = torch.cuda.get_device_name(device) if device.startswith("cuda") else "CPU"
     print(f"\n{name}, {env.num_envs} envs, {steps} steps per env, {type(alg).__name__}, "
           f"{alg.num_learning_epochs} epochs x {alg.num_mini_batches} mini-batches")

@@ -1,5 +1,5 @@
-"""gymnasium adapters of any registered task: ``CartpoleGymEnv`` (one env, ``gymnasium.Env``) and
-``CartpoleVectorEnv`` (batched).
+"""gymnasium adapters of any registered task: ``TaskGymEnv`` (one env, ``gymnasium.Env``) and
+``TaskVectorEnv`` (batched).
 
     import gymnasium as gym
     import cartpole_warp  # registers every task's ids (its Task.gym_ids)
@@ -21,6 +21,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .. import tasks
+from ..deprecation import renamed
 from ..env import BatchedEnv
 
 if TYPE_CHECKING:
@@ -76,13 +77,13 @@ def register_envs() -> None:
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
-                entry_point="cartpole_warp.wrappers.gymnasium:CartpoleGymEnv",
-                vector_entry_point="cartpole_warp.wrappers.gymnasium:CartpoleVectorEnv",
+                entry_point="cartpole_warp.wrappers.gymnasium:TaskGymEnv",
+                vector_entry_point="cartpole_warp.wrappers.gymnasium:TaskVectorEnv",
                 kwargs={"task_name": task, "preset": preset},
             )
 
 
-class CartpoleGymEnv(gym.Env):
+class TaskGymEnv(gym.Env):
     """One env of a task as a ``gymnasium.Env`` (the task's ``BatchedEnv`` with ``num_envs=1``).
 
     ``step`` returns the observation at which an episode ends, ``reset`` starts the next one. After an ending
@@ -139,7 +140,7 @@ class CartpoleGymEnv(gym.Env):
         self.core.close()
 
 
-class CartpoleVectorEnv(VectorEnv):
+class TaskVectorEnv(VectorEnv):
     """A task's ``BatchedEnv`` as a ``gymnasium.vector.VectorEnv`` (numpy in and out, no loop over envs).
 
     Same-step autoreset (``metadata["autoreset_mode"]``): an env that ends returns the first observation of
@@ -150,7 +151,7 @@ class CartpoleVectorEnv(VectorEnv):
     - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of the env's ``end_reasons``),
       each with its ``_key`` mask}, valid where ``_final_info``.
 
-    Arguments as for ``CartpoleGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to None.
+    Arguments as for ``TaskGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to None.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
@@ -195,3 +196,6 @@ class CartpoleVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs):
         self.core.close()
+
+__getattr__ = renamed(__name__, {"CartpoleGymEnv": "TaskGymEnv", "CartpoleVectorEnv": "TaskVectorEnv"})
+"""The old names (before they said what they serve), for one more release."""

@@ -1,10 +1,10 @@
-"""Stable-Baselines3 adapter: ``CartpoleSb3VecEnv``, a task's ``BatchedEnv`` as an SB3 ``VecEnv``.
+"""Stable-Baselines3 adapter: ``TaskSb3VecEnv``, a task's ``BatchedEnv`` as an SB3 ``VecEnv``.
 
     from stable_baselines3 import PPO
     from cartpole_warp import make_env
-    from cartpole_warp.wrappers.sb3 import CartpoleSb3VecEnv
+    from cartpole_warp.wrappers.sb3 import TaskSb3VecEnv
 
-    venv = CartpoleSb3VecEnv(make_env(num_envs=64, preset="default"))
+    venv = TaskSb3VecEnv(make_env(num_envs=64, preset="default"))
     PPO("MlpPolicy", venv).learn(100_000)
 
 Needs the ``[sb3]`` extra (stable-baselines3).
@@ -23,11 +23,12 @@ except ModuleNotFoundError as err:
     raise ModuleNotFoundError(f"cartpole_warp.wrappers.sb3 needs the sb3 extra ({err.name} is missing): "
                               "pip install 'cartpole_warp[sb3]'", name=err.name) from None
 
+from ..deprecation import renamed
 from ..env import BatchedEnv
 from .gymnasium import action_space, actions_tensor, env_frames, observation_space, render_metadata
 
 
-class CartpoleSb3VecEnv(VecEnv):
+class TaskSb3VecEnv(VecEnv):
     """SB3 ``VecEnv`` over one ``BatchedEnv`` of any task (one copy of the data per step, no loop over envs).
 
     ``step_wait`` returns numpy (obs (N, num_obs) float32, rewards (N,) float32, dones (N,) bool, infos). Envs that
@@ -84,7 +85,7 @@ class CartpoleSb3VecEnv(VecEnv):
     def get_images(self):
         """``num_envs`` frames (H, W, 3) uint8, env ``i`` drawn when read (needs render_mode='rgb_array')."""
         if self._frames is None:
-            raise ValueError("get_images() needs CartpoleSb3VecEnv(env, render_mode='rgb_array')")
+            raise ValueError("get_images() needs TaskSb3VecEnv(env, render_mode='rgb_array')")
         return self._frames
 
     def render(self, mode: str | None = None):
@@ -114,3 +115,6 @@ class CartpoleSb3VecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         return [False] * self._count(indices)
+
+__getattr__ = renamed(__name__, {"CartpoleSb3VecEnv": "TaskSb3VecEnv"})
+"""The old names (before they said what they serve), for one more release."""
