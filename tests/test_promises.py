@@ -117,7 +117,8 @@ def test_a_short_run_prints_its_iterations_summary_and_where_the_seconds_went(tm
     assert sum(timing.values()) >= 0.9 * total, f"seconds outside every phase: {timing} of {total}"
 
 
-@pytest.mark.skipif(os.environ.get("CARTPOLE_TEST_DEVICE", "cpu") != "cpu", reason="its GPU tests run, not skip")
+@pytest.mark.skipif(os.environ.get("CARTPOLE_TEST_DEVICE", "cpu") != "cpu",
+                    reason="on a GPU the CUDA-graph tests run: no skip to report")
 def test_the_test_command_says_why_each_test_skips():
     """The README's test command (a plain ``python -m pytest``) names every skip and its reason, as the README
     promises, without ``-rs`` on the command line: here the GPU-only tests of one module on the CPU."""
