@@ -46,10 +46,29 @@ class ModelConfig:
 
 
 @dataclass
+class CnnConfig:
+    """The image encoder of a policy that sees camera frames (rsl-rl ``CNN``; its flattened output feeds the MLP)."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    output_channels: Annotated[list[Count], pydantic.Field(min_length=1)] = field(
+        default_factory=lambda: [16, 32, 32])
+    """Channels of each convolution."""
+    kernel_size: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [8, 4, 3])
+    """Kernel size of each convolution (one value: all)."""
+    stride: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [4, 2, 1])
+    """Stride of each convolution (one value: all)."""
+    activation: Activation = "elu"
+    """Activation after each convolution."""
+
+
+@dataclass
 class ActorConfig(ModelConfig):
-    """The policy network: an MLP whose output is the mean of a Gaussian."""
+    """The policy network: an MLP whose output is the mean of a Gaussian (after a CNN where it sees camera frames)."""
 
     distribution_cfg: DistributionConfig = field(default_factory=DistributionConfig)
+    cnn: CnnConfig = field(default_factory=CnnConfig)
+    """Used only where the policy sees camera frames (``env.camera.image``)."""
 
 
 @dataclass

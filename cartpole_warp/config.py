@@ -25,6 +25,8 @@ Solver = Literal["featherstone", "mujoco"]
 """Newton solvers: ``SolverFeatherstone`` or ``SolverMuJoCo`` (on mujoco-warp)."""
 Capture = Literal["auto", "on", "off"]
 """Graph capture of the env step."""
+Image = Literal["none", "rgb", "depth"]
+"""What the policy sees: the task's state observations, or camera frames (``CameraConfig``)."""
 NO_TIME_LIMIT = 2**31 - 1
 """``max_episode_length`` of an env without a time limit (the largest int32 step counter)."""
 MAX_EPISODE_LENGTH = NO_TIME_LIMIT - 1
@@ -113,6 +115,51 @@ class SimConfig:
     def env_dt(self) -> float:
         """Duration of one env step (s)."""
         return self.physics_dt * self.decimation
+
+
+Point = tuple[Finite, Finite, Finite]
+
+
+@dataclass
+class CameraConfig:
+    """One camera per env (Newton's ray-traced ``SensorCamera``, rendered on the env's device after each step): with
+    ``image`` 'rgb' or 'depth' the policy observes its last ``frame_stack`` frames instead of the task's state, which
+    stays available to the critic (``BatchedEnv.state_obs_buf``). The camera looks from ``eye_m`` at ``target_m`` (Z up),
+    in each env's own frame."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    image: Image = "none"
+    """'none' (the policy sees the task's state), 'rgb' (uint8 colour, 3 channels a frame) or 'depth' (float32
+    distance along each pixel's ray in metres, 1 channel a frame; 0 where the ray hits nothing)."""
+    width_px: Count = 64
+    """Image width (pixels)."""
+    height_px: Count = 64
+    """Image height (pixels)."""
+    fov_rad: Annotated[float, pydantic.Field(gt=0, lt=math.pi, allow_inf_nan=False, strict=True), Number] = 1.0
+    """Vertical field of view (rad), in (0, pi)."""
+    eye_m: Point = (5.0, 0.0, 0.5)
+    """Camera position (m) in the env's frame."""
+    target_m: Point = (0.0, 0.0, 0.5)
+    """The point the camera looks at (m); the image's up is the world's +Z."""
+    frame_stack: Count = 3
+    """Frames per observation, oldest first (a reset fills them with its first frame)."""
+    min_width_px: NonNegative = 1.5
+    """Box and capsule shapes thinner than this many pixels (at the target's distance) are drawn that thick, so that a
+    thin pole stays visible at low resolution; render only (a cart task has no contacts, and masses and inertias are
+    the stage's). 0: the stage's sizes."""
+
+    @property
+    def channels(self) -> int:
+        """Channels of one frame."""
+        return 3 if self.image == "rgb" else 1
+
+    def validate(self) -> None:
+        forward = [t - e for t, e in zip(self.target_m, self.eye_m)]
+        require(math.hypot(*forward) > 1e-6, f"camera.target_m={self.target_m} must differ from camera.eye_m")
+        require(math.hypot(forward[0], forward[1]) > 1e-6 * math.hypot(*forward),
+                f"camera.eye_m={self.eye_m} -> target_m={self.target_m} looks straight up or down; the image's up "
+                "is the world's +Z, so the camera must look sideways")
 
 
 @dataclass
@@ -206,6 +253,7 @@ class EnvConfig(Generic[TaskT]):
     same trajectory."""
     sim: SimConfig = field(default_factory=SimConfig)
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
     verbose: Flag = False
     """Let Warp print while the env is built: its greeting and a line per module loaded or compiled (by default the
     library prints nothing)."""
@@ -236,6 +284,7 @@ class EnvConfig(Generic[TaskT]):
             require(steps <= MAX_EPISODE_LENGTH,
                     f"task.episode_length_s={limit_s:g} is {steps:,.0f} env steps; the step counters hold at most "
                     f"{MAX_EPISODE_LENGTH:,} ({MAX_EPISODE_LENGTH * sim.env_dt:,.0f} s): use None for no limit")
+        self.camera.validate()
         self.task.validate(self)
         return self
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import warp as wp
 
-from . import randomization
+from . import camera, randomization
 from .config import EnvConfig, TaskConfig
 from .files import data_path
 from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
@@ -95,6 +95,8 @@ class BatchedEnv(abc.ABC):
         stage = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
                  else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
         cfg.randomization.validate(self.joint_roles)
+        if cfg.camera.image != "none":
+            camera.check_memory(cfg.camera, cfg.num_envs, self.device)
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
         with timed(self.build_time_s, "kernels"):
             set_gradients(cfg.sim.solver, cfg.sim.gradients)
@@ -110,6 +112,9 @@ class BatchedEnv(abc.ABC):
         self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
                                self.num_envs, self.device)
         """The per-env physical parameters and their draws."""
+        self.cameras = ([camera.Camera(shard.scene, cfg.camera, self.device) for shard in self.shards]
+                        if cfg.camera.image != "none" else [])
+        """Each shard's camera views, where the policy observes images (``cfg.camera``)."""
         self._allocate()
         with timed(self.build_time_s, "kernels"):
             self._seed(cfg.seed)
@@ -119,10 +124,11 @@ class BatchedEnv(abc.ABC):
             self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
 
     def warp_modules(self) -> list[wp.Module]:
-        """The Warp modules this env launches kernels of (loaded when it is built): Newton's (but mujoco-warp's), the
-        machinery's, the randomization's and the task's."""
+        """The Warp modules this env launches kernels of (loaded when it is built): Newton's (but mujoco-warp's and its
+        camera's), the machinery's, the randomization's, the task's and the frame stacks'."""
+        cameras = [wp.get_module(camera.__name__)] if self.cfg.camera.image != "none" else []
         return [*preloadable_modules(self.cfg.sim.solver), init_rng.module, wp.get_module(randomization.__name__),
-                self._kernels.end_step.module]
+                self._kernels.end_step.module, *cameras]
 
     @property
     def scene(self) -> Scene:
@@ -155,9 +161,16 @@ class BatchedEnv(abc.ABC):
         self._settings.divergence_limit = float(self.cfg.sim.divergence_limit)
         self._settings.max_episode_length = int(self.max_episode_length)
         self._shard_structs = [self._structs_of(shard) for shard in self.shards]
+        image = self.cfg.camera
+        stack_shape = (n, image.channels * image.frame_stack, image.height_px, image.width_px)
+        self._images = buf(camera.image_dtype(image), stack_shape if self.cameras else (n, 0, 0, 0))
+        self._final_images = buf(camera.image_dtype(image), stack_shape if self.cameras else (n, 0, 0, 0))
 
         self.actions_buf = wp.to_torch(self._actions)
-        self.obs_buf = wp.to_torch(self._episodes.obs)
+        self.state_obs_buf = wp.to_torch(self._episodes.obs)
+        """(N, num_obs) the task's state observations (zero-copy): the policy's observations unless it sees images,
+        else the privileged observations of an asymmetric critic."""
+        self.obs_buf = wp.to_torch(self._images) if self.cameras else self.state_obs_buf
         self.reward_buf = wp.to_torch(self._results.reward)
         self.terminated_buf = wp.to_torch(self._results.terminated)
         self.truncated_buf = wp.to_torch(self._results.truncated)
@@ -165,7 +178,7 @@ class BatchedEnv(abc.ABC):
         self._states_in_t = wp.to_torch(self._states_in)
         self._mask_in_t = wp.to_torch(self._mask_in)
         self._info_views = {
-            "final_obs": wp.to_torch(self._results.final_obs),
+            "final_obs": wp.to_torch(self._final_images if self.cameras else self._results.final_obs),
             "episode_return": wp.to_torch(self._results.ended_return),
             "episode_length": wp.to_torch(self._results.ended_length),
             "end_reason": wp.to_torch(self._results.end_reason),
@@ -234,12 +247,35 @@ class BatchedEnv(abc.ABC):
         robot, episodes, results = self._shard_structs[shard.index]
         self._apply_actions(shard)
         self._simulate(shard)
+        if self.cameras:
+            self.cameras[shard.index].render()
         wp.launch(self._kernels.end_step, dim=shard.num_envs,
                   inputs=[self.params, self._settings, robot, shard.rows(self._actions)],
                   outputs=[episodes, results, shard.slot(self._nonfinite_states), shard.slot(self._diverged_states)],
                   device=self.device)
+        if self.cameras:
+            view = self.cameras[shard.index]
+            view.render_resets(results.terminated, results.truncated)
+            wp.launch(camera.push_frame, dim=self._pixels(shard),
+                      inputs=[view.frame, view.first_frame, view.reset, results.end_reason, *self._stack_sizes()],
+                      outputs=[shard.rows(self._images), shard.rows(self._final_images)], device=self.device)
         if self.physics.drawn and self.cfg.randomization.at == "reset":
             self.physics.draw(shard, self._episodes.rng_state, self._results.end_reason)
+
+    def _pixels(self, shard: Shard) -> tuple[int, int, int]:
+        return shard.num_envs, self.cfg.camera.height_px, self.cfg.camera.width_px
+
+    def _stack_sizes(self) -> tuple[int, int]:
+        return self.cfg.camera.channels, self.cfg.camera.frame_stack
+
+    def _first_images(self, shard: Shard, mask: wp.array):
+        """Where ``mask`` (new episodes): every frame of the image stack is the episode's first (with a camera)."""
+        if self.cameras:
+            view = self.cameras[shard.index]
+            view.render_all_first(shard.rows(mask))
+            wp.launch(camera.fill_stack, dim=self._pixels(shard),
+                      inputs=[view.first_frame, shard.rows(mask), *self._stack_sizes()],
+                      outputs=[shard.rows(self._images)], device=self.device)
 
     def _seed(self, seed: int):
         for shard in self.shards:
@@ -253,6 +289,7 @@ class BatchedEnv(abc.ABC):
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
                       inputs=[shard.rows(self._all_envs), self.params, self._settings],
                       outputs=[robot, episodes], device=self.device)
+            self._first_images(shard, self._all_envs)
             if self.physics.drawn:
                 self.physics.draw(shard, self._episodes.rng_state, None)
 
@@ -318,6 +355,7 @@ class BatchedEnv(abc.ABC):
                 wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
                           inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params, self._settings],
                           outputs=[robot, episodes], device=self.device)
+                self._first_images(shard, self._mask_in)
         return self.obs_buf.clone()
 
     def physical_params(self) -> "dict[str, torch.Tensor]":
@@ -352,5 +390,15 @@ class BatchedEnv(abc.ABC):
         self._step.close()
 
     def get_observations(self) -> "torch.Tensor":
-        """The current observations (N, num_obs), a fresh tensor."""
+        """The current observations (``obs_shape``), a fresh tensor."""
         return self.obs_buf.clone()
+
+    def get_state_observations(self) -> "torch.Tensor":
+        """The task's state observations (N, num_obs), a fresh tensor (the critic's where the policy sees images)."""
+        return self.state_obs_buf.clone()
+
+    @property
+    def obs_shape(self) -> tuple[int, ...]:
+        """One env's observation: (num_obs,) float32, or with a camera (channels x frame_stack, height, width) uint8
+        (rgb) or float32 metres (depth), oldest frame first."""
+        return tuple(self.obs_buf.shape[1:])

@@ -238,15 +238,18 @@ def view(args: PlayArgs, env, policy: Policy) -> int:
 
 
 def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpoint: Path | None) -> int:
-    """Each env's first episode, recorded (GIF, USD, MP4 with the video extra); the statistics printed and written
-    to result.json."""
+    """Each env's first episode, recorded (GIF, USD, MP4 with the video extra; for a policy that sees camera frames,
+    also ``policy_view.gif``: those frames beside the side view); the statistics printed and written to
+    result.json."""
     from .evaluation import rollout, whole_episode_steps
     from .viz.record import VIDEO_EXTRA, Recorder, video_available
 
     task = cfg.task_spec
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
-    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length, viser=args.record_viser)
+    camera = ((lambda: env.obs_buf[0].cpu().numpy(), env.cfg.camera.image) if env.cameras else None)
+    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length, viser=args.record_viser,
+                        camera=camera)
     stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
     pictures = recorder.close()
     at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length

@@ -58,18 +58,26 @@ def run_main():
 def make():
     """``make(num_envs=64, seed=0, preset="default", task_name=None, **overrides)``: an env of task ``task_name`` (a
     registered name; None: the default task, cartpole-balance) on the test device from a preset with nested overrides
-    (sim={...}, task={...}: ``task`` is the task's settings); every env made is closed after the test."""
+    (sim={...}, task={...}: ``task`` is the task's settings; a camera task's frames ``SMALL_FRAMES`` unless
+    camera={...} says otherwise); every env made is closed after the test."""
     envs = []
 
     def factory(num_envs=64, seed=0, preset="default", task_name=None, **overrides):
-        env = cartpole_warp.tasks.make(task_name or cartpole_warp.tasks.DEFAULT_TASK, num_envs=num_envs,
-                                       device=DEVICE, seed=seed, preset=preset, **overrides)
+        name = task_name or cartpole_warp.tasks.DEFAULT_TASK
+        if "camera" in cartpole_warp.tasks.get(name).defaults.get("env", {}):
+            overrides["camera"] = SMALL_FRAMES | overrides.get("camera", {})
+        env = cartpole_warp.tasks.make(name, num_envs=num_envs, device=DEVICE, seed=seed, preset=preset, **overrides)
         envs.append(env)
         return env
 
     yield factory
     for env in envs:
         env.close()
+
+
+SMALL_FRAMES = {"width_px": 16, "height_px": 12}
+"""The frames of a camera task in machinery tests (the machinery does not depend on the size; the CPU renders 64x64
+frames ~20x slower); tests of the pictures themselves use the task's own."""
 
 
 @pytest.fixture

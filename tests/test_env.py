@@ -27,14 +27,25 @@ def zero_actions(env):
     return torch.zeros(env.num_envs, env.num_actions, device=env.device)
 
 
+def flat(obs):
+    """(N, values) float64: each env's observation in one row; camera frames as 16 fixed random projections of their
+    pixels (any changed pixel changes them; whole frames of 1024 envs over a rollout would take gigabytes)."""
+    rows = obs.reshape(obs.shape[0], -1).double()
+    if obs.dim() > 2:
+        projection = torch.randn(rows.shape[1], 16, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+        rows = rows @ projection.to(rows.device)
+    return rows
+
+
 def rollout(env, actions_sequence):
-    """(steps, N, 3 + 2 x num_obs): reward, terminated, truncated, obs, final_obs of each step after a reset."""
+    """(steps, N, 3 + 2 x observation size): reward, terminated, truncated, obs, final_obs of each step after a
+    reset."""
     env.reset()
     trajectory = []
     for actions in actions_sequence:
         obs, reward, terminated, truncated, info = env.step(actions)
-        trajectory.append(torch.cat([reward[:, None], terminated[:, None], truncated[:, None], obs,
-                                     info["final_obs"]], dim=1).cpu())
+        trajectory.append(torch.cat([reward[:, None].double(), terminated[:, None].double(),
+                                     truncated[:, None].double(), flat(obs), flat(info["final_obs"])], dim=1).cpu())
     return torch.stack(trajectory)
 
 
@@ -70,7 +81,8 @@ def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs(task, make, ra
     assert torch.equal(truncated, ending) and not terminated.any()
     assert torch.equal(reward, ref_reward), "the ending step is rewarded like any other"
     assert torch.equal(obs[~ending], ref_obs[~ending]), "envs that did not end must be untouched"
-    assert torch.equal(final[~ending], obs[~ending])
+    if not env.cameras:  # the state's final_obs is written for every env; camera frames only where an episode ended
+        assert torch.equal(final[~ending], obs[~ending])
     assert torch.equal(final[ending], ref_obs[ending]), "final_obs is the observation before the reset"
     assert torch.equal(obs[ending], next_reset[ending]), "ended envs come back reset"
     assert not torch.equal(obs[ending], ref_obs[ending])
@@ -89,12 +101,15 @@ def test_the_mirror_signs_are_the_physics_left_right_symmetry(task, make, random
     assert len(env.obs_mirror) == env.num_obs and len(env.action_mirror) == env.num_actions
     obs_signs, action_signs = (torch.tensor(s, device=env.device) for s in (env.obs_mirror, env.action_mirror))
     states = safe_states(env, n) * torch.linspace(-3, 3, n, device=env.device)[:, None]
-    obs, obs_m = env.set_state(states), mirrored.set_state(-states)
+    env.set_state(states)
+    mirrored.set_state(-states)
+    obs, obs_m = env.get_state_observations(), mirrored.get_state_observations()  # the signs mirror the state
     torch.testing.assert_close(obs_m, obs * obs_signs)
     running = torch.ones(n, dtype=torch.bool, device=env.device)  # an ended episode restarts from a random state
     for actions in random_actions(n, 10, scale=0.3):
-        obs, reward, terminated, truncated, _ = env.step(actions)
-        obs_m, reward_m, terminated_m, truncated_m, _ = mirrored.step(actions * action_signs)
+        _, reward, terminated, truncated, _ = env.step(actions)
+        _, reward_m, terminated_m, truncated_m, _ = mirrored.step(actions * action_signs)
+        obs, obs_m = env.get_state_observations(), mirrored.get_state_observations()
         torch.testing.assert_close(reward_m[running], reward[running], rtol=1e-4, atol=1e-5)
         assert torch.equal(terminated_m[running], terminated[running])
         running &= ~(terminated | truncated)
@@ -108,6 +123,7 @@ def test_time_outs_are_truncations_not_terminations(task, make, device):
     env = make(16, task_name=task, task={"episode_length_s": 0.1})
     assert env.max_episode_length == math.ceil(0.1 / env.env_dt - 1e-9)
     start = env.set_state(torch.zeros(16, 2 * len(env.joint_roles), device=device))  # at rest, upright: it stays
+    start_state = env.get_state_observations()
     total = torch.zeros(16)
     for step in range(1, env.max_episode_length + 1):
         obs, reward, terminated, truncated, info = env.step(zero_actions(env))
@@ -120,7 +136,8 @@ def test_time_outs_are_truncations_not_terminations(task, make, device):
     torch.testing.assert_close(info["episode_return"].cpu(), total)
     assert (total > 0).all()
     torch.testing.assert_close(info["final_obs"], start, rtol=0, atol=1e-6)
-    assert (obs.cpu() - start.cpu()).abs().amax(dim=1).gt(0).all(), "every env starts over from a random state"
+    new_state = env.get_state_observations()
+    assert (new_state - start_state).abs().amax(dim=1).gt(0).all(), "every env starts over from a random state"
 
 
 @pytest.mark.parametrize("task", TASKS)
@@ -214,11 +231,17 @@ def test_reset_with_seed_restarts_the_random_stream(task, make):
 def test_sizes(task, num_envs, make, random_actions, device):
     env = make(num_envs, task_name=task)
     assert env.num_obs == cartpole_warp.tasks.get(task).env_class.num_obs and env.num_actions == 1
+    camera = env.cfg.camera
+    shape, dtype = {"none": ((env.num_obs,), torch.float32),
+                    "rgb": ((3 * camera.frame_stack, camera.height_px, camera.width_px), torch.uint8),
+                    "depth": ((camera.frame_stack, camera.height_px, camera.width_px), torch.float32)}[camera.image]
+    assert env.obs_shape == shape
     obs, info = env.reset()
-    assert obs.shape == (num_envs, env.num_obs) and obs.dtype == torch.float32 and str(obs.device) == env.device
+    assert obs.shape == (num_envs, *shape) and obs.dtype == dtype and str(obs.device) == env.device
     for actions in random_actions(num_envs, 30):
         obs, reward, terminated, truncated, info = env.step(actions)
-    assert obs.shape == info["final_obs"].shape == (num_envs, env.num_obs)
+    assert obs.shape == info["final_obs"].shape == (num_envs, *shape)
+    assert env.get_state_observations().shape == (num_envs, env.num_obs)
     assert reward.shape == terminated.shape == truncated.shape == (num_envs,)
     assert reward.dtype == torch.float32 and terminated.dtype == truncated.dtype == torch.bool
     for key in ("episode_return", "episode_length", "end_reason"):
@@ -226,7 +249,7 @@ def test_sizes(task, num_envs, make, random_actions, device):
     assert info["end_reason"].dtype == info["episode_length"].dtype == torch.int32
     assert torch.isfinite(obs).all()
     assert env.episode_length_buf.shape == (num_envs,)
-    assert env.get_observations().shape == (num_envs, env.num_obs)
+    assert env.get_observations().shape == (num_envs, *shape)
     # (N,) actions are accepted as well as (N, 1)
     env.step(torch.zeros(num_envs, device=device))
 
@@ -273,6 +296,7 @@ def test_nonfinite_actions_are_applied_as_zero_and_counted(task, make, device):
 def test_nonfinite_physics_state_is_reset_and_counted(task, make, device):
     env = make(8, task_name=task)
     last_finite = env.set_state(safe_states(env, 8))
+    last_finite_state = env.get_state_observations()
     qd = env.scene.state_0.joint_qd
     values = qd.numpy()
     values[3 * env.scene.dofs_per_env + env.scene.role_dofs[-1]] = math.nan
@@ -286,7 +310,8 @@ def test_nonfinite_physics_state_is_reset_and_counted(task, make, device):
     assert float(reward[3]) == 0.0 and float(info["episode_return"][3]) == 0.0
     assert int(info["episode_length"][3]) == 1
     assert torch.equal(info["final_obs"][3], last_finite[3]), "the last finite observation"
-    assert not torch.equal(obs[3], last_finite[3]) and int(env.episode_length_buf[3]) == 0, "env 3 starts over"
+    assert not torch.equal(env.get_state_observations()[3], last_finite_state[3]), "env 3 starts over"
+    assert int(env.episode_length_buf[3]) == 0
     obs, *_, info = env.step(zero_actions(env))
     assert torch.isfinite(obs).all() and int(info["nonfinite_states"]) == 1
 

@@ -39,7 +39,10 @@ def test_every_task_has_ids_and_they_are_registered():
                    "cartpole_warp/CartpoleBalanceSparse-v0": ("cartpole-balance-sparse", None),
                    "cartpole_warp/CartpoleSwingupSparse-v0": ("cartpole-swingup-sparse", None),
                    "cartpole_warp/CartTwoPoleSwingup-v0": ("cart-two-pole-swingup", None),
-                   "cartpole_warp/CartThreePoleSwingup-v0": ("cart-three-pole-swingup", None)}
+                   "cartpole_warp/CartThreePoleSwingup-v0": ("cart-three-pole-swingup", None),
+                   "cartpole_warp/CartpoleBalanceRGB-v0": ("cartpole-balance-rgb", None),
+                   "cartpole_warp/CartpoleBalanceDepth-v0": ("cartpole-balance-depth", None),
+                   "cartpole_warp/CartpoleSwingupRGB-v0": ("cartpole-swingup-rgb", None)}
     assert {task for task, _ in IDS.values()} == set(cartpole_warp.tasks.names())
     assert set(IDS) <= set(gym.registry)
 
@@ -51,7 +54,12 @@ def test_single_env_passes_check_env(env_id):
     num_obs = cartpole_warp.tasks.get(task).env_class.num_obs
     assert isinstance(env.unwrapped, TaskGymEnv)
     assert isinstance(env.unwrapped.core, cartpole_warp.tasks.get(task).env_class)
-    assert env.observation_space == gym.spaces.Box(-np.inf, np.inf, (num_obs,), np.float32)
+    camera = env.unwrapped.core.cfg.camera
+    frames = (camera.frame_stack, camera.height_px, camera.width_px)
+    assert env.observation_space == {
+        "none": gym.spaces.Box(-np.inf, np.inf, (num_obs,), np.float32),
+        "rgb": gym.spaces.Box(0, 255, (3 * frames[0], *frames[1:]), np.uint8),
+        "depth": gym.spaces.Box(0.0, np.inf, frames, np.float32)}[camera.image]
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -59,9 +67,9 @@ def test_single_env_passes_check_env(env_id):
     unexpected = [str(w.message) for w in caught if "infinity" not in str(w.message)]
     assert unexpected == []
     obs, info = env.reset(seed=3)
-    assert obs.dtype == np.float32 and obs.shape == (num_obs,) and info == {}
+    assert obs.dtype == env.observation_space.dtype and obs.shape == env.observation_space.shape and info == {}
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
-    assert obs.shape == (num_obs,) and isinstance(reward, float)
+    assert obs.shape == env.observation_space.shape and isinstance(reward, float)
 
 
 def test_registered_ids_build_their_presets():
@@ -94,7 +102,7 @@ def test_single_env_matches_batched_env_with_one_env(env_id):
         ret, length = ret + reward, length + 1
         assert reward == float(core_reward[0])
         assert (terminated, truncated) == (bool(core_term[0]), bool(core_trunc[0]))
-        assert isinstance(obs, np.ndarray) and obs.dtype == np.float32
+        assert isinstance(obs, np.ndarray) and obs.dtype == single.observation_space.dtype
         if terminated or truncated:
             np.testing.assert_array_equal(obs, core_info["final_obs"][0].numpy())
             assert info["episode_length"] == length
@@ -132,7 +140,7 @@ def test_vector_env_matches_core_env_step_for_step(env_id):
     core = core_env(env_id, num_envs, task=SHORT_EPISODES)
     assert isinstance(venv, TaskVectorEnv) and isinstance(venv.core, type(core))
     assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
-    assert venv.observation_space.shape == (num_envs, core.num_obs) and venv.action_space.shape == (num_envs, 1)
+    assert venv.observation_space.shape == (num_envs, *core.obs_shape) and venv.action_space.shape == (num_envs, 1)
     obs, info = venv.reset(seed=seed)
     np.testing.assert_array_equal(obs, core.reset(seed=seed)[0].numpy())
     saw_terminated = saw_truncated = False

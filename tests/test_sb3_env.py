@@ -29,7 +29,7 @@ def test_single_gym_env_passes_sb3_check_env(env_id):
     task, preset = env_ids()[env_id]
     env = TaskGymEnv(task_name=task, preset=preset)
     sb3_check_env(env, warn=False)
-    assert env.observation_space.shape == (env.core.num_obs,)
+    assert env.observation_space.shape == env.core.obs_shape
 
 
 @pytest.mark.parametrize("task", TASKS)
@@ -38,10 +38,10 @@ def test_vec_env_steps_like_the_core_env_with_sb3_infos(task):
     venv = TaskSb3VecEnv(make_env(task, num_envs, task=SHORT_EPISODES))
     core = make_env(task, num_envs, task=SHORT_EPISODES)
     assert isinstance(venv, VecEnv) and venv.num_envs == num_envs
-    assert venv.observation_space.shape == (core.num_obs,) and venv.action_space.shape == (1,)
+    assert venv.observation_space.shape == core.obs_shape and venv.action_space.shape == (1,)
     venv.seed(seed)
     obs = venv.reset()
-    assert obs.dtype == np.float32 and obs.shape == (num_envs, core.num_obs)
+    assert obs.dtype == venv.observation_space.dtype and obs.shape == (num_envs, *core.obs_shape)
     np.testing.assert_array_equal(obs, core.reset(seed=seed)[0].numpy())
     returns, lengths = np.zeros(num_envs), np.zeros(num_envs, int)
     saw_terminated = saw_truncated = False
@@ -109,8 +109,13 @@ def test_vec_env_attributes_and_methods_act_on_the_shared_env(task):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_short_ppo_run_on_vec_env(task):
+    """SB3's PPO trains a few thousand steps: its MlpPolicy on the state, its CnnPolicy (NatureCNN) on camera frames
+    (uint8 colour normalised by SB3; depth in metres as it is)."""
     venv = TaskSb3VecEnv(make_env(task, 16, task={"episode_length_s": 1.0}))
-    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=256, n_epochs=2, seed=0, device="cpu")
+    image = venv.env.cfg.camera.image
+    policy = "MlpPolicy" if image == "none" else "CnnPolicy"
+    model = PPO(policy, venv, n_steps=64, batch_size=256, n_epochs=2, seed=0, device="cpu",
+                policy_kwargs={"normalize_images": image != "depth"})
     model.learn(total_timesteps=4096)
     assert model.num_timesteps >= 4096
     assert len(model.ep_info_buffer) > 0

@@ -24,7 +24,8 @@ from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 def test_the_registry_finds_every_task_and_names_the_known_ones():
     assert tasks.names() == ["cartpole-balance", "cart-double-pole-balance", "cart-three-pole-swingup",
-                             "cart-two-pole-swingup", "cartpole-balance-sparse", "cartpole-swingup",
+                             "cart-two-pole-swingup", "cartpole-balance-depth", "cartpole-balance-rgb",
+                             "cartpole-balance-sparse", "cartpole-swingup", "cartpole-swingup-rgb",
                              "cartpole-swingup-sparse"]
     with pytest.raises(ConfigError, match="unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
                                           "cart-double-pole-balance, cart-three-pole-swingup, "):

@@ -53,8 +53,17 @@ def trained(request, tmp_path_factory):
     return log_dir, only_run(log_dir, task), result.stdout
 
 
-def num_obs(run) -> int:
-    return tasks.get(yaml.safe_load((run / "config.yaml").read_text())["task"]).env_class.num_obs
+def random_observations(run, batch: int, seed: int) -> np.ndarray:
+    """``batch`` random observations of ``run``'s task as its env gives them: the state (normal floats), or camera
+    frames (uint8 colour, depth of 0-6 m)."""
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    camera, rng = saved["env"]["camera"], np.random.default_rng(seed)
+    frames = (camera["frame_stack"], camera["height_px"], camera["width_px"])
+    if camera["image"] == "rgb":
+        return rng.integers(0, 256, (batch, 3 * frames[0], *frames[1:]), dtype=np.uint8)
+    if camera["image"] == "depth":
+        return rng.uniform(0.0, 6.0, (batch, *frames)).astype(np.float32)
+    return rng.normal(size=(batch, tasks.get(saved["task"]).env_class.num_obs)).astype(np.float32)
 
 
 def test_train_writes_every_artefact(trained):
@@ -87,7 +96,7 @@ def test_train_writes_every_artefact(trained):
 
     onnx_path, jit_path = run / "exported" / "policy.onnx", run / "exported" / "policy.pt"
     onnx.checker.check_model(str(onnx_path))
-    obs = np.random.default_rng(0).normal(size=(2, num_obs(run))).astype(np.float32)
+    obs = random_observations(run, 2, seed=0)
     (actions,) = ReferenceEvaluator(str(onnx_path)).run(None, {"obs": obs})
     scripted = torch.jit.load(str(jit_path))
     np.testing.assert_allclose(actions, scripted(torch.from_numpy(obs)).detach().numpy(), rtol=1e-4, atol=1e-5)
@@ -99,7 +108,7 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
     import onnxruntime
 
     _, run, _ = trained
-    obs = np.random.default_rng(batch).normal(size=(batch, num_obs(run))).astype(np.float32)
+    obs = random_observations(run, batch, seed=batch)
     (onnx_actions,) = onnxruntime.InferenceSession(str(run / "exported" / "policy.onnx")).run(None, {"obs": obs})
     scripted = torch.jit.load(str(run / "exported" / "policy.pt"))(torch.from_numpy(obs)).detach().numpy()
     checkpoint = policy_actions(run, "model_1.pt", obs)
@@ -131,7 +140,7 @@ def test_a_run_exports_its_best_policy_not_its_last(tmp_path):
     run = only_run(tmp_path)
     summary = json.loads((run / "summary.json").read_text())
     assert summary["best"] is not None and summary["checkpoint"] == "model_7.pt", summary
-    obs = np.random.default_rng(0).normal(size=(32, num_obs(run))).astype(np.float32)
+    obs = random_observations(run, 32, seed=0)
     (exported,) = ReferenceEvaluator(str(run / "exported" / "policy.onnx")).run(None, {"obs": obs})
     np.testing.assert_allclose(exported, policy_actions(run, "model_best.pt", obs), rtol=1e-5, atol=1e-6)
     if summary["best"]["iteration"] != summary["iterations"] - 1:
@@ -229,7 +238,8 @@ def test_play_export_writes_onnx_and_torchscript(trained, tmp_path, run_main):
     result = run_main("play", "--run", copy, "--export", "--headless", "--num-envs", "2", "--steps", "2")
     assert result.returncode == 0, result.stderr
     onnx.checker.check_model(str(copy / "exported" / "policy.onnx"))
-    assert torch.jit.load(str(copy / "exported" / "policy.pt"))(torch.zeros(1, num_obs(run))).shape == (1, 1)
+    assert torch.jit.load(str(copy / "exported" / "policy.pt"))(
+        torch.from_numpy(random_observations(run, 1, seed=0))).shape == (1, 1)
 
 
 def test_play_without_runs_says_what_to_do(tmp_path, run_main):
@@ -329,7 +339,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
      "error: randomization.action_delay_steps=1000 with num_envs=4,000,000 is an action history of 4,004,000,000"),
     (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
                                       "cart-double-pole-balance, cart-three-pole-swingup, cart-two-pole-swingup, "
-                                      "cartpole-balance-sparse, cartpole-swingup, cartpole-swingup-sparse"),
+                                      "cartpole-balance-depth, cartpole-balance-rgb, cartpole-balance-sparse, "
+                                      "cartpole-swingup, cartpole-swingup-rgb, cartpole-swingup-sparse"),
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
@@ -352,7 +363,7 @@ def test_a_failed_resume_changes_nothing_and_a_failed_start_leaves_no_folder(tra
     _, run, _ = trained
     copy = shutil.copytree(run, tmp_path / "run")
     before = {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()}
-    result = run_main("train", "--resume", copy, "--agent.actor.hidden-dims", "64", "64")
+    result = run_main("train", "--resume", copy, "--agent.actor.hidden-dims", "48", "48")  # no task's default
     assert result.returncode == 2 and "does not match the configured networks" in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
     assert {p.name: p.read_bytes() for p in copy.iterdir() if p.is_file()} == before

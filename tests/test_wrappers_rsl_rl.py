@@ -13,10 +13,10 @@ from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 def test_adapter_follows_the_rsl_rl_vecenv_contract(task):
     env = RslRlVecEnv(tasks.make(task, num_envs=8, seed=1, sim={"physics_dt": 1 / 120, "decimation": 2},
                                  task={"episode_length_s": 0.1}))
-    num_obs = env.env.num_obs
+    shape = env.env.obs_shape  # (num_obs,), or camera frames
     assert (env.num_envs, env.num_actions, env.max_episode_length) == (8, 1, 6)
     obs = env.get_observations()
-    assert isinstance(obs, TensorDict) and obs["policy"].shape == (8, num_obs) and obs.batch_size == torch.Size([8])
+    assert isinstance(obs, TensorDict) and obs["policy"].shape == (8, *shape) and obs.batch_size == torch.Size([8])
     env.episode_length_buf = torch.full((8,), 4, dtype=torch.int32)
     assert env.env.episode_length_buf.tolist() == [4] * 8
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
@@ -25,5 +25,5 @@ def test_adapter_follows_the_rsl_rl_vecenv_contract(task):
     obs, rewards, dones, extras = env.step(torch.zeros(8, 1))
     assert dones.tolist() == [1] * 8 and extras["time_outs"].all(), "counters set to 4 reach the 6-step limit"
     assert extras["episode_length"].tolist() == [2] * 8, "the reported length is the steps really run"
-    assert extras["final_obs"].shape == (8, num_obs)
-    assert obs["policy"].shape == (8, num_obs) and env.episode_length_buf.tolist() == [0] * 8
+    assert extras["final_obs"].shape == (8, *shape)
+    assert obs["policy"].shape == (8, *shape) and env.episode_length_buf.tolist() == [0] * 8

@@ -41,6 +41,7 @@ from ..wrappers.rsl_rl import mirror as mirror_batch
 from ..wrappers.tensordict_import import mark_for_compile
 from .config import TrainConfig
 from .distributed import joint_stop
+from .image_model import ImageModel
 from .ppo import SyncFreeGaussian, SyncFreePPO
 from .runs import BEST_CHECKPOINT, Progress, RunError
 
@@ -79,7 +80,7 @@ class TaskRunner(OnPolicyRunner):
         if cfg.agent.torch_compile_mode is not None:
             mark_for_compile()
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints its resolved observation sets
-            super().__init__(env, to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None),
+            super().__init__(env, to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images),
                              str(log_dir) if log_dir is not None else None, env.device)
         self.train_cfg = cfg
         task = cfg.task_spec
@@ -329,11 +330,12 @@ class TaskRunner(OnPolicyRunner):
         return deterministic(self.get_inference_policy(self.device))
 
     def export(self, out_dir: Path) -> list[Path]:
-        """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' (N, num_obs),
-        output 'actions' (N, num_actions), any batch size N) and TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's
-        ``export_policy_to_onnx`` fixes the batch to 1, so the ONNX export is torch's with a dynamic batch
-        dimension, by its TorchScript-based exporter (``dynamo=False``: 0.1 s where the dynamo exporter takes 3-4 s on
-        2 cores, for the same graph of a small MLP). Its progress report and warnings are shown only if it fails."""
+        """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' as the env gives it:
+        (N, num_obs) float32, or camera frames (N, C, H, W); output 'actions' (N, num_actions), any batch size N) and
+        TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's ``export_policy_to_onnx`` fixes the batch to 1, so the ONNX
+        export is torch's with a dynamic batch dimension, by its TorchScript-based exporter (``dynamo=False``: 0.1 s
+        where the dynamo exporter takes 3-4 s on 2 cores, for the same graph of a small MLP). Its progress report and
+        warnings are shown only if it fails."""
         out_dir = Path(out_dir)
         report = io.StringIO()
         onnx_logger = logging.getLogger("torch.onnx")
@@ -345,7 +347,7 @@ class TaskRunner(OnPolicyRunner):
                 policy = self.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
                 batch = {name: {0: "batch"} for name in (*policy.input_names, *policy.output_names)}
                 atomic_write(out_dir / "policy.onnx", lambda tmp: torch.onnx.export(
-                    policy, (torch.zeros(1, policy.input_size),), tmp, opset_version=18,
+                    policy, policy.get_dummy_inputs(), tmp, opset_version=18,
                     input_names=policy.input_names, output_names=policy.output_names, dynamic_axes=batch,
                     dynamo=False))
                 atomic_write(out_dir / "policy.pt",
@@ -382,7 +384,7 @@ def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -
     """The deterministic policy of ``checkpoint``'s actor, built as rsl-rl's PPO builds its actor (its own
     ``resolve_class`` and ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing
     needs no ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
-    cfg = to_rsl_rl(agent)
+    cfg = to_rsl_rl(agent, images=env.images)
     actor_class, actor_cfg = resolve_class(cfg["actor"])
     obs = env.get_observations()
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
@@ -402,10 +404,13 @@ def deterministic(actor: torch.nn.Module) -> Policy:
     return act
 
 
-def to_rsl_rl(agent: RunnerConfig, mirror: bool = False) -> dict:
+def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -> dict:
     """rsl-rl's ``train_cfg`` dict of ``agent``: class names added (this package's as ``module:name`` of the classes
-    themselves), our own fields left out; ``mirror``: the task has a mirror (``symmetry`` applies)."""
+    themselves), our own fields left out; ``mirror``: the task has a mirror (``symmetry`` applies); ``images``: the
+    policy observes camera frames (a CNN actor, ``ImageModel``, on the 'policy' group; the critic an MLP on the
+    task's state, the 'critic' group: an asymmetric actor-critic)."""
     cfg = dataclasses.asdict(agent)
+    cnn = cfg["actor"].pop("cnn")
     for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph"):
         del cfg[key]
     del cfg["algorithm"]["symmetry"]
@@ -420,6 +425,9 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False) -> dict:
         cfg["actor"]["distribution_cfg"]["class_name"] = _path(SyncFreeGaussian)
     cfg["critic"]["class_name"] = "MLPModel"
     cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
+    if images:
+        cfg["actor"] |= {"class_name": _path(ImageModel), "cnn_cfg": cnn}
+        cfg["obs_groups"]["critic"] = ["critic"]
     if agent.logger == "wandb":
         cfg["logger"] = {"class_name": "WandbLogWriter", "project_name": agent.wandb_project}
     elif agent.logger == "none":

@@ -192,13 +192,40 @@ class SideView:
         return image
 
 
-def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, frame_stride: int = 2) -> Path:
-    """``frames`` (T, bodies, 7) drawn by ``view`` as an animated GIF, every ``frame_stride``-th env step. The frames
-    share the 32-colour palette of the first (every frame has the same flat colours): mapping onto it is ~20x faster
-    than a palette per frame."""
+def camera_pictures(observations: np.ndarray, image: str) -> list[np.ndarray]:
+    """One env's camera observations over time (T, channels x frames, H, W) as pictures (T: (H, frames x W, 3) uint8),
+    its stacked frames side by side, oldest first; depth in grey, near bright, nothing black."""
+    steps, _, height, width = observations.shape
+    if image == "rgb":
+        frames = observations.reshape(steps, -1, 3, height, width).transpose(0, 1, 3, 4, 2)
+    else:
+        far_m = max(float(observations.max()), 1e-6)
+        grey = np.where(observations > 0, 255 * (1 - 0.7 * observations / far_m), 0).astype(np.uint8)
+        frames = np.repeat(grey[..., None], 3, axis=-1)
+    return [np.concatenate(list(stack), axis=1) for stack in frames]
+
+
+def beside(picture: Image.Image, camera: np.ndarray) -> Image.Image:
+    """``camera`` (H, W, 3) scaled to the height of ``picture`` (pixels kept square and sharp), right of it."""
+    scale = max(1, picture.height // camera.shape[0])
+    frames = Image.fromarray(camera).resize((camera.shape[1] * scale, camera.shape[0] * scale), Image.NEAREST)
+    both = Image.new("RGB", (picture.width + frames.width, max(picture.height, frames.height)), BACKGROUND)
+    both.paste(picture, (0, 0))
+    both.paste(frames, (picture.width, 0))
+    return both
+
+
+def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, frame_stride: int = 2,
+              cameras: list[np.ndarray] | None = None) -> Path:
+    """``frames`` (T, bodies, 7) drawn by ``view`` as an animated GIF, every ``frame_stride``-th env step, with the
+    policy's ``cameras`` (``camera_pictures``) beside them where given. The frames share the 32-colour palette of the
+    first (every frame has the same flat colours): mapping onto it is ~20x faster than a palette per frame; with
+    camera pictures, 256 colours."""
     images = [view.image(transforms, f"t = {i * frame_stride * env_dt:5.2f} s")
               for i, transforms in enumerate(frames[::frame_stride])]
-    palette = images[0].convert("P", palette=Image.Palette.ADAPTIVE, colors=32)
+    if cameras is not None:
+        images = [beside(image, camera) for image, camera in zip(images, cameras[::frame_stride])]
+    palette = images[0].convert("P", palette=Image.Palette.ADAPTIVE, colors=32 if cameras is None else 256)
     images = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
     duration_ms = max(20, int(round(1000 * env_dt * frame_stride)))
 

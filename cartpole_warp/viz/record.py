@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from newton.viewer import ViewerUSD
 from ..files import atomic_write
 from ..scene import Scene
 from . import prepare_viewers
-from .frames import Geometry, SideView, write_gif
+from .frames import Geometry, SideView, camera_pictures, write_gif
 
 VIDEO_EXTRA = "pip install 'cartpole_warp[video]'"
 
@@ -43,11 +44,15 @@ def write_mp4(path: Path, images: list[np.ndarray], fps: float) -> Path:
 
 class Recorder:
     """Called once per env step (``recorder(step)``), it records the bodies of env 0 of ``scene``.
-    ``video_length``: env steps in the MP4 (None: all); ``viser``: also a ``.viser`` recording."""
+    ``video_length``: env steps in the MP4 (None: all); ``viser``: also a ``.viser`` recording; ``camera``: what the
+    policy sees (env 0's camera observation, a numpy array, and the kind of image, 'rgb' or 'depth'), recorded too and
+    drawn beside the side view in ``policy_view.gif``."""
 
     def __init__(self, scene: Scene, env_dt: float, out_dir: Path, video_length: int | None = None,
-                 viser: bool = False):
+                 viser: bool = False, camera: tuple[Callable[[], np.ndarray], str] | None = None):
         self.scene, self.env_dt, self.out_dir, self.video_length = scene, env_dt, Path(out_dir), video_length
+        self.camera = camera
+        self.camera_frames: list[np.ndarray] = []
         self.geometry = Geometry(scene.model)
         self.frames: list[np.ndarray] = []
         self.fps = max(1, round(1.0 / env_dt))
@@ -70,6 +75,8 @@ class Recorder:
         self.usd.begin_frame(step / self.fps)
         self.usd.log_state(state)
         self.usd.end_frame()
+        if self.camera is not None:
+            self.camera_frames.append(np.array(self.camera[0]()))  # a copy: the env overwrites its buffers
         if self.viser is not None:
             self.viser(step)
 
@@ -85,6 +92,10 @@ class Recorder:
             recordings.append(self.out_dir / "cartpole.viser")
         view = SideView.around(self.geometry, self.frames, width_px=800)
         written = [write_gif(self.out_dir / "cartpole.gif", view, np.stack(self.frames), self.env_dt)]
+        if self.camera is not None:
+            cameras = camera_pictures(np.stack(self.camera_frames), self.camera[1])
+            written.append(write_gif(self.out_dir / "policy_view.gif", view, np.stack(self.frames), self.env_dt,
+                                     cameras=cameras))
         if video_available():
             shown = self.frames[:self.video_length] if self.video_length else self.frames
             images = [np.asarray(view.image(t, f"t = {i * self.env_dt:5.2f} s")) for i, t in enumerate(shown)]

@@ -29,7 +29,12 @@ if TYPE_CHECKING:
 
 
 def observation_space(env: BatchedEnv) -> gym.spaces.Box:
-    """One env's observation space: ``env.num_obs`` unbounded floats (the task's docstring names them)."""
+    """One env's observation space: ``env.num_obs`` unbounded floats (the task's docstring names them); with a camera
+    its frames (``env.obs_shape``): uint8 in [0, 255] (rgb) or float32 metres (depth)."""
+    if env.cfg.camera.image == "rgb":
+        return gym.spaces.Box(0, 255, env.obs_shape, np.uint8)
+    if env.cfg.camera.image == "depth":
+        return gym.spaces.Box(0.0, np.inf, env.obs_shape, np.float32)
     return gym.spaces.Box(-np.inf, np.inf, (env.num_obs,), np.float32)
 
 
@@ -146,8 +151,8 @@ class TaskVectorEnv(VectorEnv):
     Same-step autoreset (``metadata["autoreset_mode"]``): an env that ends returns the first observation of
     its next episode. On steps where any env ended, ``info`` holds (gymnasium 1.x convention):
 
-    - ``final_obs`` (N, num_obs) float32, the observations at which episodes ended, valid where ``_final_obs`` (N,)
-      bool;
+    - ``final_obs`` (N, num_obs) float32 (or camera frames: ``observation_space``), the observations at which
+      episodes ended, valid where ``_final_obs`` (N,) bool;
     - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of the env's ``end_reasons``),
       each with its ``_key`` mask}, valid where ``_final_info``.
 

@@ -20,10 +20,12 @@ from ..env import BatchedEnv
 class RslRlVecEnv(VecEnv):
     """Presents a ``BatchedEnv`` as an rsl-rl ``VecEnv``, without waiting for the device.
 
-    Observations are ``TensorDict({"policy": (N, num_obs)})``; ``dones`` is terminated | truncated (int64);
-    ``extras["time_outs"]`` marks truncations so PPO bootstraps them. ``extras`` also carries the env's ``info``
-    (``episode_return``, ``episode_length``, ``end_reason``, ``final_obs``: valid where ``dones``), from which a
-    training loop can keep episode statistics without indexing or a host sync per step.
+    Observations are ``TensorDict({"policy": (N, num_obs)})``, or where the env's policy sees camera frames
+    ``TensorDict({"policy": frames (N, C, H, W), "critic": the task's state (N, num_obs)})`` (``images``);
+    ``dones`` is terminated | truncated (int64); ``extras["time_outs"]`` marks truncations so PPO bootstraps them.
+    ``extras`` also carries the env's ``info`` (``episode_return``, ``episode_length``, ``end_reason``,
+    ``final_obs``: valid where ``dones``), from which a training loop can keep episode statistics without indexing or
+    a host sync per step.
     """
 
     def __init__(self, env: BatchedEnv):
@@ -33,11 +35,13 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = env.max_episode_length
         self.device = env.device
         self.cfg = env.cfg
+        self.images = bool(env.cameras)
+        """The policy observes camera frames (and the critic the task's state)."""
         self.obs_mirror, self.action_mirror = (
-            torch.tensor(signs, dtype=torch.float32, device=env.device) if signs is not None else None
-            for signs in (env.obs_mirror, env.action_mirror))
+            torch.tensor(signs, dtype=torch.float32, device=env.device) if signs is not None and not self.images
+            else None for signs in (env.obs_mirror, env.action_mirror))
         """The task's mirror signs (``BatchedEnv.obs_mirror``, ``action_mirror``) as tensors on the device (None: the
-        task has no symmetry)."""
+        task has no symmetry, or the policy sees images, which the signs do not mirror)."""
 
     @property
     def episode_length_buf(self) -> torch.Tensor:
@@ -49,7 +53,8 @@ class RslRlVecEnv(VecEnv):
         self.env.episode_length_buf = value
 
     def _wrap(self, obs: torch.Tensor) -> TensorDict:
-        return TensorDict({"policy": obs}, batch_size=[self.num_envs], device=self.device)
+        groups = {"policy": obs} | ({"critic": self.env.get_state_observations()} if self.images else {})
+        return TensorDict(groups, batch_size=[self.num_envs], device=self.device)
 
     def get_observations(self) -> TensorDict:
         """Current observations as ``TensorDict({"policy": (N, num_obs)})``."""

@@ -31,9 +31,10 @@ from .gymnasium import action_space, actions_tensor, env_frames, observation_spa
 class TaskSb3VecEnv(VecEnv):
     """SB3 ``VecEnv`` over one ``BatchedEnv`` of any task (one copy of the data per step, no loop over envs).
 
-    ``step_wait`` returns numpy (obs (N, num_obs) float32, rewards (N,) float32, dones (N,) bool, infos). Envs that
-    end are already reset (SB3's convention); their info holds ``terminal_observation``, ``TimeLimit.truncated``
-    and ``episode`` {``r``, ``l``, ``t``} as SB3's ``Monitor`` writes it, so no Monitor wrapper is needed.
+    ``step_wait`` returns numpy (obs (N, num_obs) float32 or camera frames (``observation_space``), rewards (N,)
+    float32, dones (N,) bool, infos). Envs that end are already reset (SB3's convention); their info holds
+    ``terminal_observation``, ``TimeLimit.truncated`` and ``episode`` {``r``, ``l``, ``t``} as SB3's ``Monitor``
+    writes it, so no Monitor wrapper is needed.
     ``seed(s)`` takes effect at the next ``reset`` (SB3's convention) and re-seeds the env's RNG with ``s``.
 
     The N sub-envs share one ``BatchedEnv``: ``get_attr``, ``set_attr`` and ``env_method`` act on it once
