@@ -124,8 +124,8 @@ Point = tuple[Finite, Finite, Finite]
 class CameraConfig:
     """One camera per env (Newton's ray-traced ``SensorCamera``, rendered on the env's device after each step): with
     ``image`` 'rgb' or 'depth' the policy observes its last ``frame_stack`` frames instead of the task's state, which
-    stays available to the critic (``BatchedEnv.state_obs_buf``). The camera looks from ``eye_m`` at ``target_m`` (Z up),
-    in each env's own frame."""
+    stays available to the critic (``BatchedEnv.state_obs_buf``). The camera looks from ``eye_m`` at ``target_m`` (Z
+    up), in each env's own frame."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
