@@ -22,8 +22,8 @@ own shape sizes."""
 
 def upright(env, cart_pos_m=0.0, pole_angle_rad=0.0):
     """Every env at rest at ``cart_pos_m`` with the pole at ``pole_angle_rad``; returns the observations."""
-    states = torch.tensor([cart_pos_m, 0.0, pole_angle_rad, 0.0]).repeat(env.num_envs, 1)
-    return env.set_state(states)
+    states = torch.tensor([cart_pos_m, 0.0, pole_angle_rad, 0.0], device=env.device).repeat(env.num_envs, 1)
+    return env.set_state(states).cpu()
 
 
 def test_depth_is_the_distance_to_the_pole_and_the_pole_moves_with_the_cart(make):
@@ -60,15 +60,16 @@ def test_frames_stack_shift_each_step_and_refill_at_the_reset(make):
     channels = 3
     before = upright(env, 0.1, 0.05)
     assert all(torch.equal(before[:, :channels], before[:, k:k + channels]) for k in (3, 6)), "a reset repeats"
-    after, *_ = env.step(torch.full((8, 1), 0.7))
+    after = env.step(torch.full((8, 1), 0.7, device=env.device))[0].cpu()
     assert torch.equal(after[:, :6], before[:, 3:]), "the older frames move back by one"
-    newest = witness.set_state(env.get_state_observations())  # the state after the step, as a reset
+    newest = witness.set_state(env.get_state_observations()).cpu()  # the state after the step, as a reset
     assert torch.equal(after[:, 6:], newest[:, 6:]), "the newest frame is the state after the step"
     assert not torch.equal(after[:, 6:], before[:, 6:])
-    env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32)
-    obs, _, _, truncated, info = env.step(torch.zeros(8, 1))
+    env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=env.device)
+    obs, _, _, truncated, info = env.step(torch.zeros(8, 1, device=env.device))
+    obs = obs.cpu()
     assert truncated.all()
-    assert torch.equal(info["final_obs"][:, :6], after[:, 3:]), "the final stack shifted like any other"
+    assert torch.equal(info["final_obs"][:, :6].cpu(), after[:, 3:]), "the final stack shifted like any other"
     assert all(torch.equal(obs[:, :channels], obs[:, k:k + channels]) for k in (3, 6)), "the new episode's start"
 
 
@@ -105,7 +106,7 @@ def test_the_actor_sees_frames_and_the_critic_the_state(make):
     env = RslRlVecEnv(make(4, task_name="cartpole-balance-rgb"))
     obs = env.get_observations()
     assert obs["policy"].shape == (4, 9, 12, 16) and obs["policy"].dtype == torch.uint8
-    assert torch.equal(obs["critic"], env.env.get_state_observations())
+    assert torch.equal(obs["critic"], env.env.get_state_observations())  # on the env's device, as rsl-rl's storage
     assert env.obs_mirror is None, "the mirror signs are the state's, not the pictures'"
     cfg = to_rsl_rl(RunnerConfig(), mirror=False, images=True)
     assert cfg["obs_groups"] == {"actor": ["policy"], "critic": ["critic"]}
@@ -134,10 +135,11 @@ def test_a_policy_from_pixels_trains_and_its_exports_act_like_the_checkpoint_on_
     env = make(5, task_name="cartpole-balance-rgb", camera={"width_px": 64, "height_px": 64})
     frames = env.reset(seed=4)[0]
     for _ in range(3):
-        frames, *_ = env.step(torch.rand(5, 1) * 2 - 1)
+        frames, *_ = env.step(torch.rand(5, 1, device=env.device) * 2 - 1)
     policy = load_policy(RslRlVecEnv(env), cfg.agent, run / "model_1.pt")
     with torch.no_grad():
-        expected = policy(frames).numpy()
+        expected = policy(frames).cpu().numpy()
+    frames = frames.cpu()
     session = onnxruntime.InferenceSession(str(run / "exported" / "policy.onnx"))
     (onnx_input,) = session.get_inputs()
     assert onnx_input.type == "tensor(uint8)" and onnx_input.shape[1:] == [9, 64, 64]

@@ -30,10 +30,9 @@ def zero_actions(env):
 def flat(obs):
     """(N, values) float64: each env's observation in one row; camera frames as 16 fixed random projections of their
     pixels (any changed pixel changes them; whole frames of 1024 envs over a rollout would take gigabytes)."""
-    rows = obs.reshape(obs.shape[0], -1).double()
+    rows = obs.reshape(obs.shape[0], -1).double().cpu()  # the CPU's sums: cuBLAS may sum in another order
     if obs.dim() > 2:
-        projection = torch.randn(rows.shape[1], 16, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-        rows = rows @ projection.to(rows.device)
+        rows = rows @ torch.randn(rows.shape[1], 16, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     return rows
 
 
@@ -44,8 +43,8 @@ def rollout(env, actions_sequence):
     trajectory = []
     for actions in actions_sequence:
         obs, reward, terminated, truncated, info = env.step(actions)
-        trajectory.append(torch.cat([reward[:, None].double(), terminated[:, None].double(),
-                                     truncated[:, None].double(), flat(obs), flat(info["final_obs"])], dim=1).cpu())
+        trajectory.append(torch.cat([reward[:, None].double().cpu(), terminated[:, None].double().cpu(),
+                                     truncated[:, None].double().cpu(), flat(obs), flat(info["final_obs"])], dim=1))
     return torch.stack(trajectory)
 
 
