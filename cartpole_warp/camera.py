@@ -28,16 +28,17 @@ SKIP_VIEW = wp.constant(-101)
 """``SensorCamera.WorldRenderFlag.DISABLE_PRESERVE``: the view is not rendered and keeps its pixels."""
 
 
-def look_at(eye: tuple, target: tuple) -> wp.transformf:
-    """The camera pose at ``eye`` whose -Z axis points at ``target`` and whose +Y is as close to world +Z as can be
-    (Newton's camera frame: -Z forward, +Y up, +X right)."""
+def look_at(eye: tuple, target: tuple, offsets: np.ndarray) -> np.ndarray:
+    """(len(offsets), 7) camera poses (position, xyzw quaternion) at ``eye`` + each offset, whose -Z axis points at
+    ``target`` and whose +Y is as close to world +Z as can be (Newton's camera frame: -Z forward, +Y up, +X right)."""
     eye, target = np.asarray(eye, dtype=np.float64), np.asarray(target, dtype=np.float64)
     forward = (target - eye) / np.linalg.norm(target - eye)
     right = np.cross(forward, (0.0, 0.0, 1.0))
     right /= np.linalg.norm(right)
     up = np.cross(right, forward)
     rotation = np.stack([right, up, -forward], axis=1)  # columns: the camera's axes in the world
-    return wp.transformf(wp.vec3f(*eye), wp.quat_from_matrix(wp.mat33f(*rotation.flatten())))
+    quat = np.asarray(wp.quat_from_matrix(wp.mat33f(*rotation.flatten())), dtype=np.float32)
+    return np.hstack([offsets + eye.astype(np.float32), np.tile(quat, (len(offsets), 1))])
 
 
 @wp.func
@@ -72,6 +73,14 @@ def mark_resets(terminated: wp.array(dtype=wp.bool), truncated: wp.array(dtype=w
     views[env] = wp.where(ended, env, SKIP_VIEW)
 
 
+@wp.func
+def refill(first: Any, env: int, y: int, x: int, channels: int, frames: int, stack: wp.array4d(dtype=Any)):
+    """Every frame of one pixel of env ``env``'s stack set to the pixel ``first`` (a new episode's first frame)."""
+    for f in range(frames):
+        for c in range(channels):
+            stack[env, f * channels + c, y, x] = channel(first, c)
+
+
 @wp.kernel
 def push_frame(frame: wp.array3d(dtype=Any), first_frame: wp.array3d(dtype=Any), reset: wp.array(dtype=wp.bool),
                end_reason: wp.array(dtype=wp.int32), channels: int, frames: int, stack: wp.array4d(dtype=Any),
@@ -91,10 +100,7 @@ def push_frame(frame: wp.array3d(dtype=Any), first_frame: wp.array3d(dtype=Any),
                 final_stack[env, i, y, x] = stack[env, i + channels, y, x]
             for c in range(channels):
                 final_stack[env, last + c, y, x] = channel(pixel, c)
-        first = first_frame[env, y, x]
-        for f in range(frames):
-            for c in range(channels):
-                stack[env, f * channels + c, y, x] = channel(first, c)
+        refill(first_frame[env, y, x], env, y, x, channels, frames, stack)
     else:
         for i in range(last):
             stack[env, i, y, x] = stack[env, i + channels, y, x]
@@ -108,9 +114,7 @@ def fill_stack(frame: wp.array3d(dtype=Any), mask: wp.array(dtype=wp.bool), chan
     """One pixel of one env: where ``mask``, every frame of the stack is ``frame`` (a new episode's first)."""
     env, y, x = wp.tid()
     if mask[env]:
-        for f in range(frames):
-            for c in range(channels):
-                stack[env, f * channels + c, y, x] = channel(frame[env, y, x], c)
+        refill(frame[env, y, x], env, y, x, channels, frames, stack)
 
 
 def image_dtype(cfg: CameraConfig):
@@ -154,8 +158,7 @@ class Camera:
             pixel_m = 2 * distance_m * math.tan(cfg.fov_rad / 2) / cfg.height_px
             thicken(scene.model, cfg.min_width_px * pixel_m)
         offsets = grid_offsets(num_envs or n, WORLD_SPACING_M)[first_env:first_env + n]  # by env: shards see alike
-        self.poses = wp.array([look_at(offset + cfg.eye_m, offset + cfg.target_m) for offset in offsets],
-                              dtype=wp.transformf, device=device)
+        self.poses = wp.array(look_at(cfg.eye_m, cfg.target_m, offsets), dtype=wp.transformf, device=device)
         model = scene.model
         self.body_offsets = wp.array(offsets[model.body_world.numpy()], dtype=wp.vec3f, device=device)
         self.seen = model.state()
@@ -237,9 +240,8 @@ def thicken(model, min_width_m: float):
 
     kinds, scales = model.shape_type.numpy(), model.shape_scale.numpy()
     half = min_width_m / 2
-    for index, kind in enumerate(kinds):
-        if kind == newton.GeoType.BOX:
-            scales[index] = np.maximum(scales[index], half)
-        elif kind in (newton.GeoType.CAPSULE, newton.GeoType.CYLINDER):
-            scales[index][0] = max(scales[index][0], half)
+    boxes = kinds == newton.GeoType.BOX
+    scales[boxes] = np.maximum(scales[boxes], half)  # half extents
+    round_ = (kinds == newton.GeoType.CAPSULE) | (kinds == newton.GeoType.CYLINDER)
+    scales[round_, 0] = np.maximum(scales[round_, 0], half)  # radius
     model.shape_scale.assign(scales)
