@@ -9,7 +9,6 @@ stack is kept as its final observation and refilled with the new episode's first
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 from typing import Any
@@ -20,17 +19,13 @@ import warp as wp
 from .config import CameraConfig, ConfigError
 from .kernels import END_DIVERGED, END_NONFINITE
 
-WORLD_SPACING_M = 10.0
-"""The renderer sees each env's bodies moved to a point of a grid this far apart (and each camera with them); the
-physics keeps every env at the origin. Newton 1.8's ray tracer on CUDA lets worlds that overlap in space leak into
-each other's views (1-2 envs of 64 drew a few pixels differently from one build to the next; spaced, none did)."""
 SKIP_VIEW = wp.constant(-101)
 """``SensorCamera.WorldRenderFlag.DISABLE_PRESERVE``: the view is not rendered and keeps its pixels."""
 
 
-def look_at(eye: tuple, target: tuple, offsets: np.ndarray) -> np.ndarray:
-    """(len(offsets), 7) camera poses (position, xyzw quaternion) at ``eye`` + each offset, whose -Z axis points at
-    ``target`` and whose +Y is as close to world +Z as can be (Newton's camera frame: -Z forward, +Y up, +X right)."""
+def look_at(eye: tuple, target: tuple) -> np.ndarray:
+    """The camera pose (position, xyzw quaternion) at ``eye`` whose -Z axis points at ``target`` and whose +Y is as
+    close to world +Z as can be (Newton's camera frame: -Z forward, +Y up, +X right)."""
     eye, target = np.asarray(eye, dtype=np.float64), np.asarray(target, dtype=np.float64)
     forward = (target - eye) / np.linalg.norm(target - eye)
     right = np.cross(forward, (0.0, 0.0, 1.0))
@@ -38,7 +33,7 @@ def look_at(eye: tuple, target: tuple, offsets: np.ndarray) -> np.ndarray:
     up = np.cross(right, forward)
     rotation = np.stack([right, up, -forward], axis=1)  # columns: the camera's axes in the world
     quat = np.asarray(wp.quat_from_matrix(wp.mat33f(*rotation.flatten())), dtype=np.float32)
-    return np.hstack([offsets + eye.astype(np.float32), np.tile(quat, (len(offsets), 1))])
+    return np.hstack([eye.astype(np.float32), quat])
 
 
 @wp.func
@@ -51,16 +46,6 @@ def channel(raw: wp.uint32, c: int) -> wp.uint8:
 def channel(raw: wp.float32, c: int) -> wp.float32:  # noqa: F811 (Warp overloads by argument type)
     """A depth pixel (m) as it is."""
     return raw
-
-
-@wp.kernel
-def move_bodies(body_q: wp.array(dtype=wp.transformf), body_offset: wp.array(dtype=wp.vec3f),
-                moved_q: wp.array(dtype=wp.transformf)):
-    """One body's pose moved by its env's offset (what the renderer sees)."""
-    body = wp.tid()
-    pose = body_q[body]
-    moved_q[body] = wp.transformf(wp.transform_get_translation(pose) + body_offset[body],
-                                  wp.transform_get_rotation(pose))
 
 
 @wp.kernel
@@ -146,10 +131,10 @@ def check_memory(cfg: CameraConfig, num_envs: int, device: str):
 
 
 class Camera:
-    """The views of one scene's envs (a CPU shard's, from env ``first_env`` of ``num_envs`` on, or all of them):
-    ``render`` after the physics, ``render_resets`` after the resets, into persistent frames (graph-capturable)."""
+    """The views of one scene's envs (a CPU shard's, or all of them): ``render`` after the physics, ``render_resets``
+    after the resets, into persistent frames (graph-capturable)."""
 
-    def __init__(self, scene, cfg: CameraConfig, device: str, first_env: int = 0, num_envs: int | None = None):
+    def __init__(self, scene, cfg: CameraConfig, device: str):
         from newton.sensors import SensorCamera
 
         self.scene, self.cfg, n = scene, cfg, scene.num_envs
@@ -157,22 +142,10 @@ class Camera:
             distance_m = math.dist(cfg.eye_m, cfg.target_m)
             pixel_m = 2 * distance_m * math.tan(cfg.fov_rad / 2) / cfg.height_px
             thicken(scene.model, cfg.min_width_px * pixel_m)
-        offsets = grid_offsets(num_envs or n, WORLD_SPACING_M)[first_env:first_env + n]  # by env: shards see alike
-        self.poses = wp.array(look_at(cfg.eye_m, cfg.target_m, offsets), dtype=wp.transformf, device=device)
-        model = scene.model
-        self.body_offsets = wp.array(offsets[model.body_world.numpy()], dtype=wp.vec3f, device=device)
-        self.seen = model.state()
-        """The bodies as the renderer sees them: each env's moved to its offset (``WORLD_SPACING_M``)."""
-        static = model.shape_transform.numpy()
-        fixed = (model.shape_body.numpy() < 0) & (model.shape_world.numpy() >= 0)
-        static[fixed, :3] += offsets[model.shape_world.numpy()[fixed]]
-        self.seen_shape_transform = wp.array(static, dtype=wp.transformf, device=device)
-        """The shapes' transforms as the renderer sees them: those fixed to the world moved with their env."""
+        self.poses = wp.array(np.tile(look_at(cfg.eye_m, cfg.target_m), (n, 1)), dtype=wp.transformf, device=device)
         self.frame = wp.zeros((n, cfg.height_px, cfg.width_px), dtype=wp.uint32 if cfg.image == "rgb" else wp.float32,
                               device=device)
         """What each view saw after the physics (the frame an episode ended on, or the next one)."""
-        with self._seen() as model:  # the BVH that finalize built had every env at the origin
-            model.bvh_build_shapes(self.seen)
         self.sensor = SensorCamera(scene.model, load_textures=False)
         self.sensor.create_default_light(enable_shadows=False)
         self.rays = SensorCamera.compute_camera_rays_pinhole(cfg.width_px, cfg.height_px, camera_fov=cfg.fov_rad,
@@ -182,24 +155,10 @@ class Camera:
         self.reset = wp.zeros(n, dtype=wp.bool, device=device)
         self.reset_views = wp.zeros(n, dtype=wp.int32, device=device)
 
-    @contextlib.contextmanager
-    def _seen(self):
-        """The bodies moved to their envs' offsets (``seen``), and the model's shape transforms the moved ones while
-        Newton's BVH code reads them."""
-        model, body_q = self.scene.model, self.scene.state_0.body_q
-        wp.launch(move_bodies, dim=body_q.shape[0], inputs=[body_q, self.body_offsets], outputs=[self.seen.body_q],
-                  device=self.frame.device)
-        shape_transform, model.shape_transform = model.shape_transform, self.seen_shape_transform
-        try:
-            yield model
-        finally:
-            model.shape_transform = shape_transform
-
     def _render(self, frame: wp.array, views: wp.array | None):
-        with self._seen() as model:
-            model.bvh_refit_shapes(self.seen)
+        self.scene.model.bvh_refit_shapes(self.scene.state_0)
         image = {"color_image" if self.cfg.image == "rgb" else "depth_image": frame}
-        self.sensor.update(self.seen, self.poses, self.rays, world_indices=views, **image)
+        self.sensor.update(self.scene.state_0, self.poses, self.rays, world_indices=views, **image)
 
     def render(self):
         """Every view into ``frame``."""
@@ -227,21 +186,20 @@ class Camera:
         newton.eval_fk(s.model, s.state_0.joint_q, s.state_0.joint_qd, s.state_0, mask=mask)
 
 
-def grid_offsets(count: int, spacing_m: float) -> np.ndarray:
-    """(count, 3) points of a cubic grid ``spacing_m`` apart, the first at the origin."""
-    side = max(1, math.ceil(count ** (1 / 3) - 1e-9))
-    index = np.arange(count)
-    return spacing_m * np.stack([index % side, index // side % side, index // side**2], axis=1).astype(np.float32)
-
-
 def thicken(model, min_width_m: float):
-    """Draw box, capsule and cylinder shapes at least ``min_width_m`` thick (their scale; render only)."""
+    """Draw box, capsule and cylinder shapes at least ``min_width_m`` thick (their scale; render only), the k-th shape
+    of an env at least (1 + k/8) times that: no two thickened faces coincide. Where a ray meets two faces at one
+    distance, the renderer draws whichever its BVH lists first, and Newton's CUDA build lists an env's shapes in the
+    order of an atomic counter (a few pixels of the pole over the rail changed from one build to the next)."""
     import newton
 
-    kinds, scales = model.shape_type.numpy(), model.shape_scale.numpy()
-    half = min_width_m / 2
+    kinds, scales, world = model.shape_type.numpy(), model.shape_scale.numpy(), model.shape_world.numpy()
+    order = np.argsort(world, kind="stable")
+    rank = np.empty(len(world))
+    rank[order] = np.arange(len(world)) - np.searchsorted(world[order], world[order])  # the shape's index in its env
+    half = min_width_m / 2 * (1 + rank / 8)
     boxes = kinds == newton.GeoType.BOX
-    scales[boxes] = np.maximum(scales[boxes], half)  # half extents
+    scales[boxes] = np.maximum(scales[boxes], half[boxes, None])  # half extents
     round_ = (kinds == newton.GeoType.CAPSULE) | (kinds == newton.GeoType.CYLINDER)
-    scales[round_, 0] = np.maximum(scales[round_, 0], half)  # radius
+    scales[round_, 0] = np.maximum(scales[round_, 0], half[round_])  # radius
     model.shape_scale.assign(scales)

@@ -112,8 +112,7 @@ class BatchedEnv(abc.ABC):
         self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
                                self.num_envs, self.device)
         """The per-env physical parameters and their draws."""
-        self.cameras = ([camera.Camera(shard.scene, cfg.camera, self.device, shard.start, cfg.num_envs)
-                         for shard in self.shards]
+        self.cameras = ([camera.Camera(shard.scene, cfg.camera, self.device) for shard in self.shards]
                         if cfg.camera.image != "none" else [])
         """Each shard's camera views, where the policy observes images (``cfg.camera``)."""
         self._allocate()

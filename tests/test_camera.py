@@ -55,8 +55,24 @@ def test_a_fixed_state_renders_the_same_frame_bitwise_and_another_state_another(
     assert frames.max() > 100 and (frames == 0).float().mean() > 0.5, "a lit robot on a black background"
 
 
+@pytest.mark.parametrize("task", ["cartpole-balance-rgb", "cart-three-pole-swingup"])
+def test_thin_shapes_are_drawn_at_least_the_minimum_width_and_no_two_alike(task, make):
+    """Where two faces coincide, a ray draws whichever the BVH lists first, and Newton's CUDA build lists an env's
+    shapes in an atomic counter's order: the same state drew a few pixels differently from one build to the next."""
+    env = make(3, task_name=task, camera={"image": "rgb", "width_px": 64, "height_px": 64, "min_width_px": 4.0})
+    cfg, model = env.cfg.camera, env.cameras[0].scene.model
+    pixel_m = 2 * math.dist(cfg.eye_m, cfg.target_m) * math.tan(cfg.fov_rad / 2) / cfg.height_px
+    boxes = model.shape_type.numpy() == 7  # newton.GeoType.BOX
+    world, half_m = model.shape_world.numpy(), model.shape_scale.numpy()
+    for env_index in range(3):
+        thinnest_m = half_m[boxes & (world == env_index)].min(axis=1)
+        assert (thinnest_m >= 4.0 * pixel_m / 2 - 1e-7).all(), "at least min_width_px wide"
+        assert len(np.unique(thinnest_m)) == len(thinnest_m), f"two shapes of env {env_index} equally thick"
+
+
 def test_frames_stack_shift_each_step_and_refill_at_the_reset(make):
-    env, witness = make(8, task_name="cartpole-balance-rgb"), make(8, task_name="cartpole-balance-rgb")
+    env, witness = (make(8, task_name="cartpole-balance-rgb", camera={"width_px": 64, "height_px": 64})
+                    for _ in range(2))
     channels = 3
     before = upright(env, 0.1, 0.05)
     assert all(torch.equal(before[:, :channels], before[:, k:k + channels]) for k in (3, 6)), "a reset repeats"
