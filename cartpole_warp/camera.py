@@ -108,11 +108,12 @@ def image_dtype(cfg: CameraConfig):
 
 
 def bytes_per_env(cfg: CameraConfig) -> int:
-    """Device memory the cameras take per env: the observation stack and its final copy, two rendered frames, the
-    ray-tracer's per-view data (a few hundred bytes)."""
+    """Device memory the frames take per env: the observation stack, its final copy and the copy of that which each
+    step hands out in ``info``, two rendered frames, the ray-tracer's per-view data (a few hundred bytes); the physics,
+    the renderer's own buffers and torch's allocator add to it (docs/benchmarks.md has both measured)."""
     pixels = cfg.width_px * cfg.height_px
-    stack = 2 * pixels * cfg.channels * cfg.frame_stack * (1 if cfg.image == "rgb" else 4)
-    return stack + 2 * pixels * 4 + 512
+    stacks = 3 * pixels * cfg.channels * cfg.frame_stack * (1 if cfg.image == "rgb" else 4)
+    return stacks + 2 * pixels * 4 + 512
 
 
 def check_memory(cfg: CameraConfig, num_envs: int, device: str):
