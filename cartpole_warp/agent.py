@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
 import pydantic
-import tyro
 
 from .config import NO_UNKNOWN_KEYS, Count, Flag, Fraction, Name, NonNegative, Positive
 
@@ -122,7 +121,7 @@ class RunnerConfig:
 
     num_steps_per_env: Count = 8
     """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
-    max_iterations: Annotated[Count, tyro.conf.arg(aliases=("--max-iterations",))] = 150
+    max_iterations: Count = 150
     """PPO iterations to run (on --resume: iterations to add)."""
     init_at_random_ep_len: Flag = True
     """Start training with each env's time-out counter at a random point of the time limit (rsl-rl's ``learn``
@@ -132,9 +131,9 @@ class RunnerConfig:
     """Write a checkpoint every this many iterations (and always at the end)."""
     experiment_name: Name | None = None
     """Folder under <log_dir>/rsl_rl that groups the runs of one experiment; None: the task's name."""
-    run_name: Annotated[str, tyro.conf.arg(aliases=("--run-name",))] = ""
+    run_name: str = ""
     """Suffix of the run folder name (empty: the timestamp alone)."""
-    logger: Annotated[MetricsLogger, tyro.conf.arg(aliases=("--logger",))] = "tensorboard"
+    logger: MetricsLogger = "tensorboard"
     """Metrics writer: 'tensorboard', 'wandb' (needs the wandb package) or 'none' (checkpoints and summary only)."""
     wandb_project: Name = "cartpole_warp"
     """Weights & Biases project when logger is 'wandb'."""

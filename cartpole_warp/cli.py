@@ -75,6 +75,20 @@ def peek(argv: list[str], **flags: str | None) -> argparse.Namespace:
 
 FULL_HELP = "--help-all"
 
+ENV_ALIASES = {"--num-envs": "--env.num-envs", "--device": "--env.device", "--seed": "--env.seed"}
+"""The short flags of the env settings that train.py and play.py share (short flag: the config field's own flag)."""
+
+
+def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:
+    """``argv`` with each short flag (``--num-envs 8``, ``--num-envs=8``, ``--num_envs 8``) written as the config
+    field's own flag (``--env.num-envs``), which tyro parses; the config classes name no program's flags."""
+    out = []
+    for arg in argv:
+        flag, equals, value = arg.partition("=")
+        target = aliases.get(flag.replace("_", "-")) if flag.startswith("--") else None
+        out.append(f"{target}{equals}{value}" if target else arg)
+    return out
+
 
 def asks_help(argv: list[str]) -> bool:
     """Whether ``argv`` asks for --help or --help-all (then no run needs to exist for the defaults)."""
@@ -92,28 +106,40 @@ def with_default_value(argv: list[str], flag: str, value: str) -> list[str]:
     return out
 
 
-def parse(cls: type[Args], default: Args, argv: list[str], description: str) -> Args:
-    """tyro's parse of ``argv`` into ``cls``, starting from ``default``; bad or unknown flags exit with code 2 and
-    tyro's message naming the flag. ``--help`` prints ``short_help``, ``--help-all`` tyro's help of every flag."""
+def parse(cls: type[Args], default: Args, argv: list[str], description: str,
+          aliases: dict[str, str] | None = None) -> Args:
+    """tyro's parse of ``argv`` into ``cls``, starting from ``default``, with the program's short flags (``aliases``:
+    short flag -> the field's flag); bad or unknown flags exit with code 2 and tyro's message naming the flag.
+    ``--help`` prints ``short_help``, ``--help-all`` tyro's help of every flag."""
+    aliases = aliases or {}
     if FULL_HELP in argv:
         argv = ["--help"]
+        if aliases:
+            description += "\n\nshort flags: " + ", ".join(f"{short} = {flag}" for short, flag in aliases.items())
     elif asks_help(argv):
-        print(short_help(cls, default, description))
+        print(short_help(cls, default, description, aliases))
         sys.exit(0)
-    return tyro.cli(cls, default=default, args=argv, description=description)
+    try:
+        return tyro.cli(cls, default=default, args=expand_aliases(argv, aliases), description=description)
+    except SystemExit as exit_:
+        typed = sorted({arg.partition("=")[0].replace("_", "-") for arg in argv} & aliases.keys())
+        if exit_.code and typed:  # tyro's message names the field's flag: say which short flag that was
+            print(f"({', '.join(f'{short} is {aliases[short]}' for short in typed)})", file=sys.stderr)
+        raise
 
 
-def short_help(cls: type[Args], default: Args, description: str, width: int = 100) -> str:
-    """``description``, then the flags of the top level and their short aliases (``--num-envs`` for
+def short_help(cls: type[Args], default: Args, description: str, aliases: dict[str, str], width: int = 100) -> str:
+    """``description``, then the flags of the top level and the short flags (``aliases``: ``--num-envs`` for
     ``--env.num-envs``): each with the first sentence of its help and its default, from the parser tyro builds
     for ``--help-all`` (which lists the other flags, every config field, in groups)."""
+    short_of = {flag: short for short, flag in aliases.items()}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # tyro 1.0 deprecates get_parser, not yet removed
         parser = tyro.extras.get_parser(cls, default=default)
     common, other = [], 0
     for action in parser._actions:
         flags = [flag for flag in action.option_strings if flag.startswith("--")]
-        short = [flag for flag in flags if "." not in flag]
+        short = [short_of.get(flag, flag) for flag in flags if "." not in flag or flag in short_of]
         if "-h" in action.option_strings:
             continue
         if not short or action.help == argparse.SUPPRESS:

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import pydantic
-import tyro
 
 Solver = Literal["featherstone", "mujoco"]
 """Newton solvers: ``SolverFeatherstone`` or ``SolverMuJoCo`` (on mujoco-warp)."""
@@ -244,11 +243,11 @@ class EnvConfig(Generic[TaskT]):
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    num_envs: Annotated[Count, tyro.conf.arg(aliases=("--num-envs",))] = 4096
+    num_envs: Count = 4096
     """Number of robots simulated in parallel (per GPU when torchrun starts several processes)."""
-    device: Annotated[str, tyro.conf.arg(aliases=("--device",))] = "cpu"
+    device: str = "cpu"
     """Warp / torch device: 'cpu', 'cuda' or 'cuda:N' (under torchrun each process takes cuda:$LOCAL_RANK)."""
-    seed: Annotated[Seed, tyro.conf.arg(aliases=("--seed",))] = 0
+    seed: Seed = 0
     """Seed of the per-env reset RNG (and of torch in train.py; seed + rank under torchrun); the same seed gives the
     same trajectory."""
     sim: SimConfig = field(default_factory=SimConfig)

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Annotated, Generic, Literal
 import tyro
 
 from . import tasks
-from .cli import ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
+from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
 from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
 from .files import write_text
 from .rl.config import TrainConfig, checked, train_config
@@ -128,7 +128,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         require(not first.task or first.task == cfg.task, f"--task {first.task}: the run was trained on {cfg.task}")
     cfg.env.num_envs = cfg.eval.num_envs
     cls = PlayArgs[type(cfg.env.task)]
-    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), argv, __doc__)
+    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), argv, __doc__, ENV_ALIASES)
     require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
             f"--agent {args.agent} takes no --run, --checkpoint or --export")
     require(args.steps is None or args.steps >= 1, f"--steps must be >= 1, got {args.steps}")

@@ -23,7 +23,17 @@ from typing import Annotated, Generic, Literal
 import tyro
 
 from . import tasks
-from .cli import ViserArgs, asks_help, clean_errors, parse, peek, process_age_s, quiet_libraries, with_default_value
+from .cli import (
+    ENV_ALIASES,
+    ViserArgs,
+    asks_help,
+    clean_errors,
+    parse,
+    peek,
+    process_age_s,
+    quiet_libraries,
+    with_default_value,
+)
 from .config import ConfigError, TaskT, require
 from .presets import presets
 from .rl.config import TrainConfig, checked, train_config
@@ -49,6 +59,11 @@ class TrainArgs(Generic[TaskT]):
     """viser: watch the training envs in a browser (the viser extra), drawn between iterations at most 1/20 of the
     time (nothing is imported or drawn without it)."""
     viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
+
+
+ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-name": "--agent.run-name",
+                         "--logger": "--agent.logger"}
+"""train.py's short flags."""
 
 
 def task_list() -> str:
@@ -90,7 +105,7 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     else:
         base = train_config(first.task or tasks.DEFAULT_TASK, first.config)
     cls = TrainArgs[type(base.env.task)]
-    args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}")
+    args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES)
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
     require(args.viser.problem() is None, args.viser.problem())
     cfg = checked(args.cfg).validate()
