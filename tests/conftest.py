@@ -20,6 +20,17 @@ import cartpole_warp
 DEVICE = os.environ.get("CARTPOLE_TEST_DEVICE", "cpu")
 
 
+GB_PER_WORKER = 4
+"""The most memory one test process has held (4.3 GB peak, the whole suite in one process, 2-core CPU)."""
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto`` (the README's test command, through pyproject's addopts): one test process per core, as many as
+    the available memory holds at ``GB_PER_WORKER`` each."""
+    available_gb = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 1e9
+    return max(1, min(os.cpu_count() or 1, int(available_gb // GB_PER_WORKER)))
+
+
 @pytest.fixture(scope="session")
 def device() -> str:
     """The device the env tests run on."""
