@@ -215,22 +215,22 @@ def beside(picture: Image.Image, camera: np.ndarray) -> Image.Image:
     return both
 
 
-def write_gif(path: Path, view: SideView, frames: np.ndarray, env_dt: float, frame_stride: int = 2,
+def write_gif(path: Path, images: list[Image.Image], frame_dt_s: float,
               cameras: list[np.ndarray] | None = None) -> Path:
-    """``frames`` (T, bodies, 7) drawn by ``view`` as an animated GIF, every ``frame_stride``-th env step, with the
-    policy's ``cameras`` (``camera_pictures``) beside them where given. The frames share the 32-colour palette of the
-    first (every frame has the same flat colours): mapping onto it is ~20x faster than a palette per frame; with
-    camera pictures, 256 colours."""
-    images = [view.image(transforms, f"t = {i * frame_stride * env_dt:5.2f} s")
-              for i, transforms in enumerate(frames[::frame_stride])]
+    """``images`` as an animated GIF, ``frame_dt_s`` apart, with the policy's ``cameras`` (``camera_pictures``, one
+    per image) beside them where given. The frames share the 32-colour palette of the first (every frame has the same
+    flat colours): mapping onto it is ~20x faster than a palette per frame; with camera pictures, 256 colours. Frames
+    are written without Pillow's ``optimize`` (which makes each frame's unchanged pixels transparent): 25x faster
+    (1.5 -> 0.06 s for 301 frames of 800x172), 14% larger."""
     if cameras is not None:
-        images = [beside(image, camera) for image, camera in zip(images, cameras[::frame_stride])]
+        images = [beside(image, camera) for image, camera in zip(images, cameras)]
     palette = images[0].convert("P", palette=Image.Palette.ADAPTIVE, colors=32 if cameras is None else 256)
     images = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
-    duration_ms = max(20, int(round(1000 * env_dt * frame_stride)))
+    duration_ms = max(20, int(round(1000 * frame_dt_s)))
 
     def save(tmp):
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0)
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0,
+                       optimize=False)
 
     return atomic_write(path, save)
 

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 from collections.abc import Callable
@@ -22,6 +23,8 @@ from . import prepare_viewers
 from .frames import Geometry, SideView, camera_pictures, write_gif
 
 VIDEO_EXTRA = "pip install 'cartpole_warp[video]'"
+GIF_STRIDE = 2
+"""The GIFs show every this many env steps (the MP4 every one)."""
 
 
 def video_available() -> bool:
@@ -91,13 +94,20 @@ class Recorder:
             self.viser.close()
             recordings.append(self.out_dir / "cartpole.viser")
         view = SideView.around(self.geometry, self.frames, width_px=800)
-        written = [write_gif(self.out_dir / "cartpole.gif", view, np.stack(self.frames), self.env_dt)]
+
+        @functools.cache
+        def picture(step: int):  # each step's side view drawn once, for the GIFs and the MP4 alike
+            return view.image(self.frames[step], f"t = {step * self.env_dt:5.2f} s")
+
+        gif_steps = range(0, len(self.frames), GIF_STRIDE)
+        gif_pictures = [picture(step) for step in gif_steps]
+        written = [write_gif(self.out_dir / "cartpole.gif", gif_pictures, GIF_STRIDE * self.env_dt)]
         if self.camera is not None:
             cameras = camera_pictures(np.stack(self.camera_frames), self.camera[1])
-            written.append(write_gif(self.out_dir / "policy_view.gif", view, np.stack(self.frames), self.env_dt,
-                                     cameras=cameras))
+            written.append(write_gif(self.out_dir / "policy_view.gif", gif_pictures, GIF_STRIDE * self.env_dt,
+                                     cameras=[cameras[step] for step in gif_steps]))
         if video_available():
-            shown = self.frames[:self.video_length] if self.video_length else self.frames
-            images = [np.asarray(view.image(t, f"t = {i * self.env_dt:5.2f} s")) for i, t in enumerate(shown)]
-            written.append(write_mp4(self.out_dir / "cartpole.mp4", images, 1.0 / self.env_dt))
+            shown = range(min(len(self.frames), self.video_length or len(self.frames)))
+            written.append(write_mp4(self.out_dir / "cartpole.mp4", [np.asarray(picture(step)) for step in shown],
+                                     1.0 / self.env_dt))
         return [*written, *recordings]
