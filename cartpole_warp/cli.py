@@ -32,10 +32,18 @@ class ViserArgs:
     """--viewer viser: the page's port."""
     viewer_envs: int = 16
     """--viewer viser: how many envs the page shows, in a grid."""
+    viewer_interval_s: float = 5.0
+    """train.py --viewer viser: seconds between the page's updates while training. Each update makes the browser
+    render; one without a GPU on the training's own cores spends most of a core-second on it, so shorter intervals
+    slow training there."""
 
     def problem(self) -> str | None:
         """What is wrong with these values, in one line (None: nothing)."""
-        return None if self.viewer_envs >= 1 else f"--viewer-envs must be >= 1, got {self.viewer_envs}"
+        if self.viewer_envs < 1:
+            return f"--viewer-envs must be >= 1, got {self.viewer_envs}"
+        if not self.viewer_interval_s >= 0 or self.viewer_interval_s == float("inf"):
+            return f"--viewer-interval-s must be finite and >= 0, got {self.viewer_interval_s}"
+        return None
 
 
 def process_age_s() -> float | None:

@@ -205,3 +205,23 @@ def test_the_pages_pause_holds_training_until_a_stop_is_requested(make, paused):
     finally:
         view.close()
     assert len(polls) == (3 if paused else 0)
+
+
+@pytest.mark.parametrize("interval_s", [0.0, 3600.0])
+def test_training_draws_the_page_at_most_every_interval(make, interval_s):
+    """Each update of the page makes the browser render (most of a core-second without a GPU, on the training's own
+    cores): TrainingView draws an iteration only ``interval_s`` after the last drawn one."""
+    from cartpole_warp.statistics import EpisodeSummary
+    from cartpole_warp.viz.web import TrainingView
+
+    view = TrainingView(make(num_envs=4), "127.0.0.1", free_port(), 4, interval_s=interval_s)
+    view.DRAW_RATIO = 0  # the interval alone decides
+    drawn = []
+    draw = view.viewer.draw
+    view.viewer.draw = lambda *args: (drawn.append(args[0]), draw(*args))
+    try:
+        for iteration in range(3):
+            view(iteration, EpisodeSummary(4, 1.0, 10.0, 0.1, 0.0))
+    finally:
+        view.close()
+    assert drawn == ([0.0, 1.0, 2.0] if interval_s == 0 else [0.0])

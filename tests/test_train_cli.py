@@ -342,6 +342,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
                                       "cartpole-balance-depth, cartpole-balance-rgb, cartpole-balance-sparse, "
                                       "cartpole-swingup, cartpole-swingup-rgb, cartpole-swingup-sparse"),
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
+    (["--viewer-interval-s", "-1"], "error: --viewer-interval-s must be finite and >= 0, got -1.0"),
+    (["--viewer-interval-s", "nan"], "error: --viewer-interval-s must be finite and >= 0, got nan"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
     result = run_main("train", "--log-dir", tmp_path, *args)

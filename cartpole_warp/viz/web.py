@@ -128,19 +128,22 @@ def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tens
 
 
 class TrainingView:
-    """``runner.on_iteration``: the training envs in the browser viewer, drawn between iterations while drawing takes
-    at most ``1 / (1 + DRAW_RATIO)`` of the wall time (each draw waits ``DRAW_RATIO`` times the last draw's duration);
-    the plots show each drawn iteration's mean reward per step and episode length. The page's Pause holds training
-    after the iteration in progress (its Step lets one more iteration through) until it is unchecked, the server
-    closes or ``stopping()`` says a stop was requested (Ctrl-C)."""
+    """``runner.on_iteration``: the training envs in the browser viewer, drawn between iterations at most every
+    ``interval_s`` seconds and while drawing takes at most ``1 / (1 + DRAW_RATIO)`` of the wall time (each draw waits
+    ``DRAW_RATIO`` times the last draw's duration); the plots show each drawn iteration's mean reward per step and
+    episode length. Each update makes the browser render: one that renders in software on the training's own cores
+    (no GPU) spends most of a core-second on it. The page's Pause holds training after the iteration in progress (its
+    Step lets one more iteration through) until it is unchecked, the server closes or ``stopping()`` says a stop was
+    requested (Ctrl-C)."""
 
     DRAW_RATIO = 20
     POLL_S = 0.05
     """How often a paused training looks at the page."""
 
-    def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int,
+    def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int, interval_s: float = 5.0,
                  stopping: Callable[[], bool] = lambda: False, paused: bool = False):
         self.viewer = WebViewer(env, host, port, num_shown, paused=paused)
+        self.interval_s = interval_s
         self.url = self.viewer.url
         self.stopping = stopping
         self._next_draw = 0.0
@@ -155,7 +158,7 @@ class TrainingView:
                            "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
             self.viewer.draw(float(iteration), scalars)
             took = time.perf_counter() - started
-            self._next_draw = started + took * (1 + self.DRAW_RATIO)
+            self._next_draw = started + max(took * (1 + self.DRAW_RATIO), self.interval_s)
         while paused and self.viewer.is_running() and not self.stopping():
             time.sleep(self.POLL_S)
             paused = not self.viewer.wants_step()
