@@ -228,7 +228,8 @@ def view(args: PlayArgs, env, policy: Policy) -> int:
 
         viser = args.viser
         steps = view_in_browser(env, policy, viser.host, viser.port, viser.viewer_envs, max_steps=args.steps,
-                                on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True))
+                                on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True),
+                                title=args.task)
     else:
         from .viz.viewer import view_interactively
 

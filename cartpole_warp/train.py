@@ -168,7 +168,8 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         from .viz.web import TrainingView
 
         view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
-                            args.viser.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None)
+                            args.viser.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
+                            title=training.cfg.task)
         training.runner.on_iteration = view
         print(f"watch it at {view.url}", flush=True)
 

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -98,7 +99,9 @@ def console_errors(driver) -> list[str]:
 
 def test_play_serves_a_moving_scene_to_a_browser(repo, tmp_path, browser):
     """play.py --viewer viser: the page loads without console errors, shows a 3-D canvas, a screenshot that is not
-    blank, and another a moment later that differs (the poles move); Ctrl-C frees the port."""
+    blank, and another a moment later that differs (the poles move), the project's panel; Ctrl-C frees the port."""
+    from selenium.webdriver.common.by import By
+
     port = free_port()
     process, url = start(repo, "play.py", "--agent", "zero", "--viewer", "viser", "--port", port, "--num-envs", 16,
                          "--steps", 100_000, "--log-dir", tmp_path)
@@ -110,9 +113,14 @@ def test_play_serves_a_moving_scene_to_a_browser(repo, tmp_path, browser):
         time.sleep(1.5)
         second = screenshot(browser)
         errors = console_errors(browser)
+        panel = browser.find_element(By.TAG_NAME, "body").text
+        plots = browser.find_elements(By.CLASS_NAME, "uplot")
     finally:
         output = stop(process)
     assert errors == []
+    assert "cartpole-balance, playing: t = " in panel and "envs 0-15 of 16 shown" in panel, panel
+    assert len(plots) == 2, "the reward per step and the episode length"
+    assert "Show Cloth" not in panel and "Contact Forces" not in panel, "the project's panel, not Newton's generic one"
     assert first.std() > 5, "the page is blank"
     assert np.abs(first - second).mean() > 0.01, "the scene does not move"
     assert re.search(r"viewer closed after \d+ env steps", output), output
@@ -162,7 +170,8 @@ def test_headless_play_starts_no_viser_server_unless_asked(repo, tmp_path):
 
 def test_headless_play_records_for_the_static_player(repo, tmp_path, browser, run_main):
     """play.py --headless --record-viser writes cartpole.viser beside the GIF, for every task; ``python -m
-    cartpole_warp.viz.web`` serves it in viser's player, which loads it without console errors."""
+    cartpole_warp.viz.web`` serves it in viser's player at the address it prints, which loads it without console
+    errors."""
     from cartpole_warp import tasks
 
     for task in tasks.names():
@@ -178,12 +187,32 @@ def test_headless_play_records_for_the_static_player(repo, tmp_path, browser, ru
                                text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         url = re.search(r"watch it at (http://\S+)", process.stdout.readline()).group(1)
+        assert url == f"http://127.0.0.1:{port}/", "the address alone plays the recording"
+        with urllib.request.urlopen(url) as page:
+            assert page.url.endswith("/?playbackPath=recording.viser")
         open_page(browser, url)
         time.sleep(2)
         errors = console_errors(browser)
     finally:
         stop(process)
     assert errors == []
+
+
+def test_a_browser_leaving_the_player_mid_transfer_prints_no_traceback(capsys):
+    from cartpole_warp.viz.web import PlayerServer
+
+    with PlayerServer(("127.0.0.1", 0), None) as server:
+        for gone in (BrokenPipeError, ConnectionResetError):
+            try:
+                raise gone
+            except gone:
+                server.handle_error(None, ("127.0.0.1", 1))
+        assert capsys.readouterr().err == ""
+        try:
+            raise ValueError("a real fault")
+        except ValueError:
+            server.handle_error(None, ("127.0.0.1", 1))
+        assert "ValueError: a real fault" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("paused", [False, True])

@@ -33,6 +33,17 @@ MARGIN_M = 0.5
 """Space around each env's reach (m)."""
 CAMERA_FOV_DEG = 50.0
 """Vertical field of view assumed when framing the grid (viser's default is near it)."""
+MIN_ASPECT = 0.85
+"""The narrowest view (width / height) the grid is framed for, so that no env is cut off: a page beside its panel is
+mostly wider than tall."""
+PLOTS = (("reward per step", "#2563eb"), ("episode length (s)", "#ea580c"))
+"""The page's plots: name, line colour."""
+PLOT_POINTS = 500
+"""Points each plot keeps (the latest)."""
+RECORDING_NAME = "recording.viser"
+"""The recording's address on the player's server."""
+PLOT_REFRESH_S = 0.5
+"""The plots are sent to the page at most this often (each refresh makes the browser redraw them)."""
 
 
 def check_viser():
@@ -43,18 +54,73 @@ def check_viser():
         raise ViewerUnavailable(f"the browser viewer needs the viser extra: {VISER_EXTRA}") from None
 
 
+class Panel:
+    """The page's own panel, in place of Newton's generic one (cloth, particles, contacts): what runs (``status``
+    markdown), Pause and Step, and one plot per ``PLOTS`` entry against ``x_label`` with labelled axes."""
+
+    def __init__(self, server, x_label: str, paused: bool):
+        from viser import uplot
+
+        server.gui.reset()
+        server.gui.configure_theme(control_layout="fixed", control_width="medium", show_logo=False)
+        self.status = server.gui.add_markdown("")
+        self.pause = server.gui.add_checkbox("Pause", initial_value=paused)
+        self.step = server.gui.add_button("Step", disabled=not paused)
+        self._step_requested = False
+
+        @self.pause.on_update
+        def _on_pause(_event):
+            self.step.disabled = not self.pause.value
+
+        @self.step.on_click
+        def _on_step(_event):
+            self._step_requested = True
+
+        self.points: dict[str, list[tuple[float, float]]] = {name: [] for name, _ in PLOTS}
+        self.plots = {name: server.gui.add_uplot(
+            data=(np.zeros(0), np.zeros(0)),
+            series=(uplot.Series(label=x_label), uplot.Series(label=name, stroke=colour, width=2)),
+            scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
+            axes=(uplot.Axis(label=x_label), uplot.Axis(label=name, size=60)),
+            legend=uplot.Legend(show=False), aspect=1.5) for name, colour in PLOTS}
+        self._refreshed = -math.inf
+
+    def wants_step(self) -> bool:
+        """Whether to go on: not paused, or Step was pressed since the last call."""
+        if not self.pause.value:
+            return True
+        requested, self._step_requested = self._step_requested, False
+        return requested
+
+    def update(self, status: str, x: float, values: dict[str, float]):
+        """Show ``status`` and add the points (``x``, value) of the named plots (sent at most every
+        ``PLOT_REFRESH_S``)."""
+        if self.status.content != status:
+            self.status.content = status
+        for name, value in values.items():
+            self.points[name] = self.points[name][-(PLOT_POINTS - 1):] + [(x, value)]
+        now = time.perf_counter()
+        if values and now - self._refreshed >= PLOT_REFRESH_S:
+            self._refreshed = now
+            for name, points in self.points.items():
+                if points:
+                    self.plots[name].data = tuple(np.array(column, dtype=np.float64) for column in zip(*points))
+
+
 class WebViewer:
-    """The first ``num_shown`` envs of ``env`` in Newton's viser viewer at ``http://host:port``."""
+    """The first ``num_shown`` envs of ``env`` in Newton's viser viewer at ``http://host:port``, with this project's
+    panel (``Panel``): ``title`` (the task), plots against ``x_label``."""
 
     def __init__(self, env: BatchedEnv, host: str = "127.0.0.1", port: int = 8080, num_shown: int = 16,
-                 title: str = "cartpole_warp", paused: bool = False):
+                 title: str = "cartpole_warp", x_label: str = "time (s)", paused: bool = False):
         check_viser()
         from newton.viewer import ViewerViser
 
-        self.env = env
+        self.env, self.title = env, title
         prepare_viewers()
-        self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False, paused=paused)
+        self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False, paused=False)
         self.url = self.viewer.url
+        self.panel = Panel(self.viewer.server, x_label, paused)
         model = env.scene.model
         self.num_shown = min(num_shown, env.scene.num_envs)
         self.viewer.set_model(model)
@@ -66,12 +132,17 @@ class WebViewer:
         self._frame_grid(model.up_axis, spacing, (low + high) / 2)
         self._shown = wp.array(model.articulation_world.numpy() < self.num_shown, dtype=wp.bool, device=model.device)
 
+    @property
+    def shown(self) -> str:
+        """Which envs the page shows, in words."""
+        return f"envs 0-{self.num_shown - 1} of {self.env.num_envs:,} shown"
+
     def _frame_grid(self, up_axis, spacing: tuple[float, float, float], env_centre: np.ndarray):
         """Camera side-on (looking along -X), far enough to see every shown env's reach."""
         offsets = newton.utils.compute_world_offsets(self.num_shown, spacing, up_axis)
         width_m = np.ptp(offsets[:, 1]) + spacing[1]
         height_m = np.ptp(offsets[:, 2]) + spacing[2]
-        distance_m = max(height_m, width_m / 1.2) / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
+        distance_m = max(height_m, width_m / MIN_ASPECT) / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
         centre = offsets.mean(axis=0)
         self.viewer.set_camera(wp.vec3(distance_m, float(centre[1] + env_centre[0]), float(centre[2] + env_centre[1])),
                                pitch=0.0, yaw=180.0)
@@ -81,17 +152,17 @@ class WebViewer:
 
     def wants_step(self) -> bool:
         """Whether the env should step now: not paused, or the page asked for one step."""
-        return not self.viewer.is_paused() or self.viewer.should_step()
+        return self.panel.wants_step()
 
-    def draw(self, time_s: float, scalars: dict[str, float] | None = None):
-        """The shown envs' current poses (resets included) and the named scalars' next points."""
+    def draw(self, x: float, status: str, scalars: dict[str, float] | None = None):
+        """The shown envs' current poses (resets included), the panel's ``status`` and the named scalars' points at
+        ``x``."""
         state = self.env.scene.state_0
         newton.eval_fk(self.env.scene.model, state.joint_q, state.joint_qd, state, mask=self._shown)
-        self.viewer.begin_frame(time_s)
+        self.viewer.begin_frame(x)
         self.viewer.log_state(state)
-        for name, value in (scalars or {}).items():
-            self.viewer.log_scalar(name, value)
         self.viewer.end_frame()
+        self.panel.update(status, x, scalars or {})
 
     def close(self):
         """Stop the server (its port is free afterwards)."""
@@ -99,26 +170,33 @@ class WebViewer:
 
 
 def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tensor], host: str, port: int,
-                    num_shown: int, max_steps: int | None = None, on_ready: Callable[[str], None] = print) -> int:
+                    num_shown: int, max_steps: int | None = None, on_ready: Callable[[str], None] = print,
+                    title: str = "cartpole_warp") -> int:
     """Run ``policy`` in the browser viewer at real time until Ctrl-C (or ``max_steps`` env steps); return the steps
-    run. ``on_ready(url)`` is called once the page is served."""
-    viewer = WebViewer(env, host, port, num_shown)
+    run. ``on_ready(url)`` is called once the page is served; ``title``: the task."""
+    viewer = WebViewer(env, host, port, num_shown, title=title)
     on_ready(viewer.url)
     obs, _ = env.reset()
-    steps = 0
-    scalars: dict[str, float] = {}
+    steps = ended_count = time_limit_count = 0
     try:
         with torch.inference_mode():
             while viewer.is_running() and (max_steps is None or steps < max_steps):
                 started = time.perf_counter()
+                points = {}
                 if viewer.wants_step():
                     obs, reward, terminated, truncated, info = env.step(policy(obs).to(torch.float32))
                     steps += 1
                     ended = terminated | truncated
-                    scalars["reward per step"] = reward.mean().item()
+                    points["reward per step"] = reward.mean().item()
                     if ended.any():
-                        scalars["episode length (s)"] = info["episode_length"][ended].float().mean().item() * env.env_dt
-                viewer.draw(steps * env.env_dt, scalars)
+                        points["episode length (s)"] = info["episode_length"][ended].float().mean().item() * env.env_dt
+                        ended_count += int(ended.sum())
+                        time_limit_count += int((truncated & ~terminated).sum())
+                status = f"**{title}**, playing: t = {steps * env.env_dt:.2f} s, {viewer.shown}"
+                if ended_count:
+                    status += (f"; {ended_count:,} episodes ended, {time_limit_count / ended_count:.0%} at the time "
+                               "limit")
+                viewer.draw(steps * env.env_dt, status, points)
                 time.sleep(max(0.0, env.env_dt - (time.perf_counter() - started)))
     except KeyboardInterrupt:
         pass
@@ -141,22 +219,29 @@ class TrainingView:
     """How often a paused training looks at the page."""
 
     def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int, interval_s: float = 5.0,
-                 stopping: Callable[[], bool] = lambda: False, paused: bool = False):
-        self.viewer = WebViewer(env, host, port, num_shown, paused=paused)
-        self.interval_s = interval_s
-        self.url = self.viewer.url
+                 stopping: Callable[[], bool] = lambda: False, paused: bool = False, title: str = "cartpole_warp"):
+        self.viewer = WebViewer(env, host, port, num_shown, title=title, x_label="iteration", paused=paused)
+        self.url, self.title, self.interval_s = self.viewer.url, title, interval_s
         self.stopping = stopping
         self._next_draw = 0.0
+        self._last = None
+        """(iteration, time) of the last call, for the iteration rate."""
 
     def __call__(self, iteration: int, summary) -> None:
         started = time.perf_counter()
+        rate = (iteration - self._last[0]) / (started - self._last[1]) if self._last else None
+        self._last = (iteration, started)
         paused = not self.viewer.wants_step()
         if started >= self._next_draw or paused:
-            scalars = {}
+            status = f"**{self.title}**, training: iteration {iteration}, {self.viewer.shown}"
+            if rate:
+                status += f", {rate:.1f} iterations/s"
+            points = {}
             if summary.mean_reward_per_step is not None:
-                scalars = {"reward per step": summary.mean_reward_per_step,
-                           "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
-            self.viewer.draw(float(iteration), scalars)
+                points = {"reward per step": summary.mean_reward_per_step,
+                          "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
+                status += f"; {summary.episodes:,} episodes ended, {summary.time_limit_fraction:.0%} at the time limit"
+            self.viewer.draw(float(iteration), status, points)
             took = time.perf_counter() - started
             self._next_draw = started + max(took * (1 + self.DRAW_RATIO), self.interval_s)
         while paused and self.viewer.is_running() and not self.stopping():
@@ -200,6 +285,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+class PlayerServer(http.server.ThreadingHTTPServer):
+    """The static player's server: a browser that leaves mid-transfer (a broken pipe, a reset) is no error to print
+    a traceback for."""
+
+    def handle_error(self, request, client_address):
+        if not isinstance(sys.exc_info()[1], ConnectionError):
+            super().handle_error(request, client_address)
+
+
 def serve_recording(path: Path, port: int) -> None:
     """Serve viser's static player with the recording ``path`` on 127.0.0.1:``port`` until Ctrl-C."""
     check_viser()
@@ -213,7 +307,12 @@ def serve_recording(path: Path, port: int) -> None:
             super().__init__(*args, directory=client_dir, **kwargs)
 
         def do_GET(self):
-            if self.path.split("?")[0] != "/recording.viser":
+            if self.path == "/":  # the player plays nothing without the recording's address
+                self.send_response(302)
+                self.send_header("Location", f"/?playbackPath={RECORDING_NAME}")
+                self.end_headers()
+                return None
+            if self.path.split("?")[0] != f"/{RECORDING_NAME}":
                 return super().do_GET()
             self.send_response(200)
             self.send_header("Content-Type", "application/octet-stream")
@@ -224,8 +323,8 @@ def serve_recording(path: Path, port: int) -> None:
         def log_message(self, *args):
             pass
 
-    with http.server.ThreadingHTTPServer(("127.0.0.1", port), Player) as server:
-        print(f"watch it at http://127.0.0.1:{port}/?playbackPath=recording.viser (Ctrl-C ends)", flush=True)
+    with PlayerServer(("127.0.0.1", port), Player) as server:
+        print(f"watch it at http://127.0.0.1:{port}/ (Ctrl-C ends)", flush=True)
         with contextlib.suppress(KeyboardInterrupt):
             server.serve_forever()
 
