@@ -249,8 +249,8 @@ def test_training_draws_the_page_at_most_every_interval(make, interval_s):
     draw = view.viewer.draw
     view.viewer.draw = lambda *args: (drawn.append(args[0]), draw(*args))
     try:
-        for iteration in range(3):
-            view(iteration, EpisodeSummary(4, 1.0, 10.0, 0.1, 0.0))
+        for iteration in range(3):  # a task without a time limit: no fraction reaching it
+            view(iteration, EpisodeSummary(4, 1.0, 10.0, 0.1, time_limit_fraction=None))
     finally:
         view.close()
     assert drawn == ([0.0, 1.0, 2.0] if interval_s == 0 else [0.0])

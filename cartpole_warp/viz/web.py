@@ -40,10 +40,10 @@ PLOTS = (("reward per step", "#2563eb"), ("episode length (s)", "#ea580c"))
 """The page's plots: name, line colour."""
 PLOT_POINTS = 500
 """Points each plot keeps (the latest)."""
-RECORDING_NAME = "recording.viser"
-"""The recording's address on the player's server."""
 PLOT_REFRESH_S = 0.5
 """The plots are sent to the page at most this often (each refresh makes the browser redraw them)."""
+RECORDING_NAME = "recording.viser"
+"""The recording's address on the player's server."""
 
 
 def check_viser():
@@ -83,7 +83,7 @@ class Panel:
             scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
             axes=(uplot.Axis(label=x_label), uplot.Axis(label=name, size=60)),
             legend=uplot.Legend(show=False), aspect=1.5) for name, colour in PLOTS}
-        self._refreshed = -math.inf
+        self._refreshed, self._unsent = -math.inf, False
 
     def wants_step(self) -> bool:
         """Whether to go on: not paused, or Step was pressed since the last call."""
@@ -99,9 +99,10 @@ class Panel:
             self.status.content = status
         for name, value in values.items():
             self.points[name] = self.points[name][-(PLOT_POINTS - 1):] + [(x, value)]
+        self._unsent = self._unsent or bool(values)
         now = time.perf_counter()
-        if values and now - self._refreshed >= PLOT_REFRESH_S:
-            self._refreshed = now
+        if self._unsent and now - self._refreshed >= PLOT_REFRESH_S:
+            self._refreshed, self._unsent = now, False
             for name, points in self.points.items():
                 if points:
                     self.plots[name].data = tuple(np.array(column, dtype=np.float64) for column in zip(*points))
@@ -240,7 +241,9 @@ class TrainingView:
             if summary.mean_reward_per_step is not None:
                 points = {"reward per step": summary.mean_reward_per_step,
                           "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
-                status += f"; {summary.episodes:,} episodes ended, {summary.time_limit_fraction:.0%} at the time limit"
+                status += f"; {summary.episodes:,} episodes ended"
+                if summary.time_limit_fraction is not None:
+                    status += f", {summary.time_limit_fraction:.0%} at the time limit"
             self.viewer.draw(float(iteration), status, points)
             took = time.perf_counter() - started
             self._next_draw = started + max(took * (1 + self.DRAW_RATIO), self.interval_s)
