@@ -34,8 +34,7 @@ class ViserArgs:
     """--viewer viser: how many envs the page shows, in a grid."""
     viewer_interval_s: float = 5.0
     """train.py --viewer viser: seconds between the page's updates while training. Each update makes the browser
-    render; one without a GPU on the training's own cores spends most of a core-second on it, so shorter intervals
-    slow training there."""
+    redraw: a browser without a GPU, on the training's own cores, then slows training the more, the shorter this."""
 
     def problem(self) -> str | None:
         """What is wrong with these values, in one line (None: nothing)."""
