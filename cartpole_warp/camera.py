@@ -138,6 +138,7 @@ class Camera:
     def __init__(self, scene, cfg: CameraConfig, device: str):
         from newton.sensors import SensorCamera
 
+        assert SKIP_VIEW == SensorCamera.WorldRenderFlag.DISABLE_PRESERVE, "Newton's flag for a view left as it is"
         self.scene, self.cfg, n = scene, cfg, scene.num_envs
         if cfg.min_width_px > 0:
             distance_m = math.dist(cfg.eye_m, cfg.target_m)
@@ -189,9 +190,9 @@ class Camera:
 
 def thicken(model, min_width_m: float):
     """Draw box, capsule and cylinder shapes at least ``min_width_m`` thick (their scale; render only), the k-th shape
-    of an env at least (1 + k/8) times that: no two thickened faces coincide. Where a ray meets two faces at one
-    distance, the renderer draws whichever its BVH lists first, and Newton's CUDA build lists an env's shapes in the
-    order of an atomic counter (a few pixels of the pole over the rail changed from one build to the next)."""
+    of an env at least (1 + k/8) times that, so that no two thickened shapes are alike. With one width for all, two
+    CUDA builds drew a few pixels of the same state differently (Newton's CUDA build orders an env's shapes by an
+    atomic counter); with distinct widths none did (docs/benchmarks.md)."""
     import newton
 
     kinds, scales, world = model.shape_type.numpy(), model.shape_scale.numpy(), model.shape_world.numpy()

@@ -32,17 +32,10 @@ class ViserArgs:
     """--viewer viser: the page's port."""
     viewer_envs: int = 16
     """--viewer viser: how many envs the page shows, in a grid."""
-    viewer_interval_s: float = 5.0
-    """train.py --viewer viser: seconds between the page's updates while training. Each update makes the browser
-    redraw: a browser without a GPU, on the training's own cores, then slows training the more, the shorter this."""
 
     def problem(self) -> str | None:
         """What is wrong with these values, in one line (None: nothing)."""
-        if self.viewer_envs < 1:
-            return f"--viewer-envs must be >= 1, got {self.viewer_envs}"
-        if not self.viewer_interval_s >= 0 or self.viewer_interval_s == float("inf"):
-            return f"--viewer-interval-s must be finite and >= 0, got {self.viewer_interval_s}"
-        return None
+        return None if self.viewer_envs >= 1 else f"--viewer-envs must be >= 1, got {self.viewer_envs}"
 
 
 def process_age_s() -> float | None:
@@ -86,14 +79,18 @@ ENV_ALIASES = {"--num-envs": "--env.num-envs", "--device": "--env.device", "--se
 """The short flags of the env settings that train.py and play.py share (short flag: the config field's own flag)."""
 
 
+def flag_name(arg: str) -> str:
+    """The flag of a command-line word, written with dashes (``--num_envs=8`` -> ``--num-envs``)."""
+    return arg.partition("=")[0].replace("_", "-")
+
+
 def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:
     """``argv`` with each short flag (``--num-envs 8``, ``--num-envs=8``, ``--num_envs 8``) written as the config
     field's own flag (``--env.num-envs``), which tyro parses; the config classes name no program's flags."""
     out = []
     for arg in argv:
-        flag, equals, value = arg.partition("=")
-        target = aliases.get(flag.replace("_", "-")) if flag.startswith("--") else None
-        out.append(f"{target}{equals}{value}" if target else arg)
+        target = aliases.get(flag_name(arg)) if arg.startswith("--") else None
+        out.append(target + arg[len(arg.partition("=")[0]):] if target else arg)
     return out
 
 
@@ -129,7 +126,7 @@ def parse(cls: type[Args], default: Args, argv: list[str], description: str,
     try:
         return tyro.cli(cls, default=default, args=expand_aliases(argv, aliases), description=description)
     except SystemExit as exit_:
-        typed = sorted({arg.partition("=")[0].replace("_", "-") for arg in argv} & aliases.keys())
+        typed = sorted({flag_name(arg) for arg in argv} & aliases.keys())
         if exit_.code and typed:  # tyro's message names the field's flag: say which short flag that was
             print(f"({', '.join(f'{short} is {aliases[short]}' for short in typed)})", file=sys.stderr)
         raise

@@ -15,6 +15,7 @@ Also installed as ``python -m cartpole_warp.train``.
 from __future__ import annotations
 
 import gc
+import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +59,9 @@ class TrainArgs(Generic[TaskT]):
     viewer: Literal["none", "viser"] = "none"
     """viser: watch the training envs in a browser (the viser extra), drawn between iterations at most 1/20 of the
     time (nothing is imported or drawn without it)."""
+    viewer_interval_s: float = 5.0
+    """--viewer viser: seconds between the page's updates. Each update makes the browser redraw: a browser without a
+    GPU, on the training's own cores, then slows training the more, the shorter this."""
     viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
 
 
@@ -108,6 +112,8 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES)
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
     require(args.viser.problem() is None, args.viser.problem())
+    require(math.isfinite(args.viewer_interval_s) and args.viewer_interval_s >= 0,
+            f"--viewer-interval-s must be finite and >= 0, got {args.viewer_interval_s}")
     cfg = checked(args.cfg).validate()
     return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint, args
 
@@ -168,7 +174,7 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         from .viz.web import TrainingView
 
         view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
-                            args.viser.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
+                            args.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
                             title=training.cfg.task)
         training.runner.on_iteration = view
         print(f"watch it at {view.url}", flush=True)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from conftest import system_command
 from PIL import Image
 
@@ -249,8 +250,25 @@ def test_training_draws_the_page_at_most_every_interval(make, interval_s):
     draw = view.viewer.draw
     view.viewer.draw = lambda *args: (drawn.append(args[0]), draw(*args))
     try:
-        for iteration in range(3):  # a task without a time limit: no fraction reaching it
-            view(iteration, EpisodeSummary(4, 1.0, 10.0, 0.1, time_limit_fraction=None))
+        for iteration in range(3):
+            view(iteration, EpisodeSummary(4, 1.0, 10.0, 0.1, 0.0))
     finally:
         view.close()
     assert drawn == ([0.0, 1.0, 2.0] if interval_s == 0 else [0.0])
+
+
+@pytest.mark.parametrize("episode_length_s", [10.0, None])
+def test_the_page_gives_the_share_at_the_time_limit_only_where_the_task_has_one(make, episode_length_s):
+    from cartpole_warp.statistics import EpisodeStats
+    from cartpole_warp.viz.web import WebViewer
+
+    env = make(num_envs=4, task={"episode_length_s": episode_length_s})
+    stats = EpisodeStats(env.device, env.max_episode_length)
+    ended = torch.tensor([True, True, True, False])
+    stats.add(ended, torch.ones(4), torch.full((4,), 10), torch.tensor([True, False, False, False]))
+    viewer = WebViewer(env, "127.0.0.1", free_port(), 4)
+    try:
+        line = viewer.ended(stats.summary())
+    finally:
+        viewer.close()
+    assert line == ("; 3 episodes ended, 33% at the time limit" if episode_length_s else "; 3 episodes ended")

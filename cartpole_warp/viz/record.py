@@ -78,8 +78,8 @@ class Recorder:
         self.usd.begin_frame(step / self.fps)
         self.usd.log_state(state)
         self.usd.end_frame()
-        if self.camera is not None:
-            self.camera_frames.append(np.array(self.camera[0]()))  # a copy: the env overwrites its buffers
+        if self.camera is not None and step % GIF_STRIDE == 0:  # what policy_view.gif shows
+            self.camera_frames.append(self.camera[0]())
         if self.viser is not None:
             self.viser(step)
 
@@ -105,7 +105,7 @@ class Recorder:
         if self.camera is not None:
             cameras = camera_pictures(np.stack(self.camera_frames), self.camera[1])
             written.append(write_gif(self.out_dir / "policy_view.gif", gif_pictures, GIF_STRIDE * self.env_dt,
-                                     cameras=[cameras[step] for step in gif_steps]))
+                                     cameras=cameras))
         if video_available():
             shown = range(min(len(self.frames), self.video_length or len(self.frames)))
             written.append(write_mp4(self.out_dir / "cartpole.mp4", [np.asarray(picture(step)) for step in shown],

@@ -9,6 +9,7 @@ can reach the host and port sees the page and can pause the run. ``Recording`` w
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import http.server
 import io
@@ -25,6 +26,7 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
+from ..statistics import EpisodeStats, EpisodeSummary
 from . import ViewerUnavailable, prepare_viewers
 from .frames import env_bounds
 
@@ -76,7 +78,7 @@ class Panel:
         def _on_step(_event):
             self._step_requested = True
 
-        self.points: dict[str, list[tuple[float, float]]] = {name: [] for name, _ in PLOTS}
+        self.points = {name: collections.deque(maxlen=PLOT_POINTS) for name, _ in PLOTS}
         self.plots = {name: server.gui.add_uplot(
             data=(np.zeros(0), np.zeros(0)),
             series=(uplot.Series(label=x_label), uplot.Series(label=name, stroke=colour, width=2)),
@@ -98,7 +100,7 @@ class Panel:
         if self.status.content != status:
             self.status.content = status
         for name, value in values.items():
-            self.points[name] = self.points[name][-(PLOT_POINTS - 1):] + [(x, value)]
+            self.points[name].append((x, value))
         self._unsent = self._unsent or bool(values)
         now = time.perf_counter()
         if self._unsent and now - self._refreshed >= PLOT_REFRESH_S:
@@ -117,7 +119,7 @@ class WebViewer:
         check_viser()
         from newton.viewer import ViewerViser
 
-        self.env, self.title = env, title
+        self.env = env
         prepare_viewers()
         self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False, paused=False)
         self.url = self.viewer.url
@@ -137,6 +139,16 @@ class WebViewer:
     def shown(self) -> str:
         """Which envs the page shows, in words."""
         return f"envs 0-{self.num_shown - 1} of {self.env.num_envs:,} shown"
+
+    def ended(self, summary: EpisodeSummary) -> str:
+        """How many episodes ``summary`` counts and, where the task has a time limit, the share that reached it ('' for
+        none)."""
+        if not summary.episodes:
+            return ""
+        text = f"; {summary.episodes:,} episodes ended"
+        if self.env.cfg.task.episode_length_s is not None:
+            text += f", {summary.time_limit_fraction:.0%} at the time limit"
+        return text
 
     def _frame_grid(self, up_axis, spacing: tuple[float, float, float], env_centre: np.ndarray):
         """Camera side-on (looking along -X), far enough to see every shown env's reach."""
@@ -178,7 +190,7 @@ def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tens
     viewer = WebViewer(env, host, port, num_shown, title=title)
     on_ready(viewer.url)
     obs, _ = env.reset()
-    steps = ended_count = time_limit_count = 0
+    steps, stats = 0, EpisodeStats(env.device, env.max_episode_length)
     try:
         with torch.inference_mode():
             while viewer.is_running() and (max_steps is None or steps < max_steps):
@@ -189,15 +201,11 @@ def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tens
                     steps += 1
                     ended = terminated | truncated
                     points["reward per step"] = reward.mean().item()
+                    stats.add(ended, info["episode_return"], info["episode_length"], truncated)
                     if ended.any():
                         points["episode length (s)"] = info["episode_length"][ended].float().mean().item() * env.env_dt
-                        ended_count += int(ended.sum())
-                        time_limit_count += int((truncated & ~terminated).sum())
                 status = f"**{title}**, playing: t = {steps * env.env_dt:.2f} s, {viewer.shown}"
-                if ended_count:
-                    status += (f"; {ended_count:,} episodes ended, {time_limit_count / ended_count:.0%} at the time "
-                               "limit")
-                viewer.draw(steps * env.env_dt, status, points)
+                viewer.draw(steps * env.env_dt, status + viewer.ended(stats.summary()), points)
                 time.sleep(max(0.0, env.env_dt - (time.perf_counter() - started)))
     except KeyboardInterrupt:
         pass
@@ -241,10 +249,7 @@ class TrainingView:
             if summary.mean_reward_per_step is not None:
                 points = {"reward per step": summary.mean_reward_per_step,
                           "episode length (s)": summary.mean_episode_length * self.viewer.env.env_dt}
-                status += f"; {summary.episodes:,} episodes ended"
-                if summary.time_limit_fraction is not None:
-                    status += f", {summary.time_limit_fraction:.0%} at the time limit"
-            self.viewer.draw(float(iteration), status, points)
+            self.viewer.draw(float(iteration), status + self.viewer.ended(summary), points)
             took = time.perf_counter() - started
             self._next_draw = started + max(took * (1 + self.DRAW_RATIO), self.interval_s)
         while paused and self.viewer.is_running() and not self.stopping():
