@@ -256,26 +256,14 @@ class BatchedEnv(abc.ABC):
         if self.cameras:
             view = self.cameras[shard.index]
             view.render_resets(results.terminated, results.truncated)
-            wp.launch(camera.push_frame, dim=self._pixels(shard),
-                      inputs=[view.frame, view.first_frame, view.reset, results.end_reason, *self._stack_sizes()],
-                      outputs=[shard.rows(self._images), shard.rows(self._final_images)], device=self.device)
+            view.push(results.end_reason, shard.rows(self._images), shard.rows(self._final_images))
         if self.physics.drawn and self.cfg.randomization.at == "reset":
             self.physics.draw(shard, self._episodes.rng_state, self._results.end_reason)
-
-    def _pixels(self, shard: Shard) -> tuple[int, int, int]:
-        return shard.num_envs, self.cfg.camera.height_px, self.cfg.camera.width_px
-
-    def _stack_sizes(self) -> tuple[int, int]:
-        return self.cfg.camera.channels, self.cfg.camera.frame_stack
 
     def _first_images(self, shard: Shard, mask: wp.array):
         """Where ``mask`` (new episodes): every frame of the image stack is the episode's first (with a camera)."""
         if self.cameras:
-            view = self.cameras[shard.index]
-            view.render_all_first(shard.rows(mask))
-            wp.launch(camera.fill_stack, dim=self._pixels(shard),
-                      inputs=[view.first_frame, shard.rows(mask), *self._stack_sizes()],
-                      outputs=[shard.rows(self._images)], device=self.device)
+            self.cameras[shard.index].start_stacks(shard.rows(mask), shard.rows(self._images))
 
     def _seed(self, seed: int):
         for shard in self.shards:

@@ -9,6 +9,7 @@ import torch
 from conftest import call_main
 
 import cartpole_warp
+from cartpole_warp import camera
 from cartpole_warp.config import ConfigError
 
 POLE_FACE_X_M = 0.12 + 0.02
@@ -70,8 +71,9 @@ def test_thin_shapes_are_drawn_at_least_the_minimum_width_and_no_two_alike(task,
         assert len(np.unique(thinnest_m)) == len(thinnest_m), f"two shapes of env {env_index} equally thick"
 
 
-def test_frames_stack_shift_each_step_and_refill_at_the_reset(make):
-    env, witness = (make(8, task_name="cartpole-balance-rgb", camera={"width_px": 64, "height_px": 64})
+@pytest.mark.parametrize("size_px", [64, 63], ids=["words", "pixels"])  # 63 x 63 pixels: no whole words
+def test_frames_stack_shift_each_step_and_refill_at_the_reset(size_px, make):
+    env, witness = (make(8, task_name="cartpole-balance-rgb", camera={"width_px": size_px, "height_px": size_px})
                     for _ in range(2))
     channels = 3
     before = upright(env, 0.1, 0.05)
@@ -87,6 +89,25 @@ def test_frames_stack_shift_each_step_and_refill_at_the_reset(make):
     assert truncated.all()
     assert torch.equal(info["final_obs"][:, :6].cpu(), after[:, 3:]), "the final stack shifted like any other"
     assert all(torch.equal(obs[:, :channels], obs[:, k:k + channels]) for k in (3, 6)), "the new episode's start"
+
+
+def test_the_envs_that_reset_are_drawn_alike_in_passes_of_a_few_views(make):
+    """On CUDA the views of the envs that reset are drawn a few at a time (``Camera.views_per_pass``); every env that
+    resets must get its own new first frame whichever pass draws it."""
+    envs = [make(8, task_name="cartpole-balance-rgb", sim={"capture": "off"},
+                 camera={"width_px": 32, "height_px": 32}) for _ in range(2)]
+    for env, views_per_pass in zip(envs, (8, 3)):
+        env.cameras[0] = camera.Camera(env.shards[0].scene, env.cfg.camera, env.device, views_per_pass=views_per_pass)
+    results = []
+    for env in envs:
+        states = torch.tensor([[1.0, 0.0, 0.15, 0.0]] * 8, device=env.device)  # drawn unlike a reset's state
+        before = env.set_state(states).cpu()
+        env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=env.device)
+        obs, _, terminated, truncated, info = env.step(torch.zeros(8, 1, device=env.device))
+        assert (terminated | truncated).all(), "all 8 reset: 3 passes of 3, 3 and 2 views"
+        assert not torch.equal(obs.cpu()[:, 6:], before[:, 6:]), "the new episodes are drawn, not the old frames"
+        results.append((obs.cpu(), info["final_obs"].cpu()))
+    assert torch.equal(results[0][0], results[1][0]) and torch.equal(results[0][1], results[1][1])
 
 
 BAD_CAMERAS = [
