@@ -6,6 +6,7 @@ A policy is any ``policy(obs) -> actions`` callable on torch tensors, obs (N, nu
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -130,8 +131,41 @@ def whole_episode_steps(env: BatchedEnv) -> int:
     return env.max_episode_length if env.cfg.task.episode_length_s is not None else NO_LIMIT_STEPS
 
 
-def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:
-    """Each env's first episode from a reset seeded with ``seed`` to its end (``whole_episode_steps``): what
-    ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved')."""
-    steps = whole_episode_steps(run.env)
-    return run(steps, seed=seed).summary(min(steps, run.env.max_episode_length))
+class Evaluation:
+    """The evaluation that decides 'solved': each env's first episode from a reset seeded with ``seed`` to its end
+    (``whole_episode_steps``), what ``play.py --headless`` plays with that env count and seed, of a copy of ``actor``
+    (``policy_of(copy)`` is the policy of a module). ``start`` copies the actor's weights and runs the episodes; on
+    CUDA on a stream of its own, beside the training, which may change the actor meanwhile; ``summary`` waits for them.
+    """
+
+    def __init__(self, env: BatchedEnv, actor: torch.nn.Module, policy_of: Callable[[torch.nn.Module], Policy],
+                 seed: int):
+        self.actor, self.seed = copy.deepcopy(actor).eval(), seed
+        self.steps = whole_episode_steps(env)
+        self.run = FirstEpisodesRun(env, policy_of(self.actor))
+        self._stream = torch.cuda.Stream(env.device) if torch.device(env.device).type == "cuda" else None
+        self._episodes: FirstEpisodes | None = None
+        self._done: torch.cuda.Event | None = None
+
+    def start(self, actor: torch.nn.Module):
+        """Run the episodes of ``actor``'s current weights (on CUDA: queued on the evaluation's stream; ``actor`` may
+        change as soon as this returns)."""
+        if self._stream is None:
+            self.actor.load_state_dict(actor.state_dict())
+            self._episodes = self.run(self.steps, seed=self.seed)
+            return
+        training = torch.cuda.current_stream(self._stream.device)
+        self._stream.wait_stream(training)
+        with torch.cuda.stream(self._stream):
+            self.actor.load_state_dict(actor.state_dict())
+            training.wait_stream(self._stream)  # the training changes the weights only once they are copied
+            self._episodes = self.run(self.steps, seed=self.seed)
+            self._done = torch.cuda.Event()
+            self._done.record(self._stream)
+
+    def summary(self) -> EpisodeSummary:
+        """The means over the started run's episodes (waits for them)."""
+        if self._done is not None:
+            self._done.synchronize()
+        episodes, self._episodes, self._done = self._episodes, None, None
+        return episodes.summary(min(self.steps, self.run.env.max_episode_length))

@@ -156,7 +156,8 @@ class RunSummary:
     evaluations: int
     """Evaluations the run has had."""
     evaluation_s: float
-    """Their seconds, part of ``train_time_s``."""
+    """The seconds the training waited for them, part of ``train_time_s`` (on CUDA an evaluation runs beside the
+    training: ``eval.overlap_iterations``)."""
     best: dict | None
     """The best evaluation (``Progress.best``): the policy of ``model_best.pt``."""
     max_episode_length: int | None
