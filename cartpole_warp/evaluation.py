@@ -6,7 +6,6 @@ A policy is any ``policy(obs) -> actions`` callable on torch tensors, obs (N, nu
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -133,14 +132,14 @@ def whole_episode_steps(env: BatchedEnv) -> int:
 
 class Evaluation:
     """The evaluation that decides 'solved': each env's first episode from a reset seeded with ``seed`` to its end
-    (``whole_episode_steps``), what ``play.py --headless`` plays with that env count and seed, of a copy of ``actor``
-    (``policy_of(copy)`` is the policy of a module). ``start`` copies the actor's weights and runs the episodes; on
-    CUDA on a stream of its own, beside the training, which may change the actor meanwhile; ``summary`` waits for them.
-    """
+    (``whole_episode_steps``), what ``play.py --headless`` plays with that env count and seed, of ``actor`` (a module
+    like the training's actor: ``start`` copies the training's weights into it; ``policy_of(actor)`` is its policy).
+    On CUDA the episodes run on a stream of their own, beside the training, which may change its actor meanwhile;
+    ``summary`` waits for them."""
 
     def __init__(self, env: BatchedEnv, actor: torch.nn.Module, policy_of: Callable[[torch.nn.Module], Policy],
                  seed: int):
-        self.actor, self.seed = copy.deepcopy(actor).eval(), seed
+        self.actor, self.seed = actor.eval(), seed
         self.steps = whole_episode_steps(env)
         self.run = FirstEpisodesRun(env, policy_of(self.actor))
         self._stream = torch.cuda.Stream(env.device) if torch.device(env.device).type == "cuda" else None

@@ -25,12 +25,12 @@ FAILING = EpisodeSummary(100, 10.0, 20.0, 0.5, 0.0)
 def make_training(tmp_path, logger="none", **eval_settings) -> Training:
     """A balance run of 64 training envs and 32 evaluation envs on the test device that barely learns (fixed learning
     rate of 1e-12): its policy stays the one the test writes into the actor. It trains all its iterations unless a
-    test sets ``stop_when_solved``."""
+    test sets ``stop_when_solved``; each evaluation is taken at once (also on CUDA) unless ``eval_settings`` say."""
     cfg = train_config("cartpole-balance")
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 64, DEVICE, logger, str(tmp_path)
     cfg.stop_when_solved = False
     cfg.agent.algorithm.schedule, cfg.agent.algorithm.learning_rate = "fixed", 1e-12
-    for name, value in {"num_envs": 32, **eval_settings}.items():
+    for name, value in {"num_envs": 32, "overlap_iterations": 0, **eval_settings}.items():
         setattr(cfg.eval, name, value)
     return Training(cfg, tmp_path / "run")
 

@@ -271,7 +271,7 @@ class TaskRunner(OnPolicyRunner):
         """Make the evaluation of the policy on ``eval_env`` (on a GPU: capture its CUDA graph) if not made yet;
         ``Training`` calls it while setting up, so that the first evaluation costs no capture."""
         if self.eval_env is not None and self._evaluation is None:
-            self._evaluation = Evaluation(self.eval_env, self.alg.get_policy(), deterministic,
+            self._evaluation = Evaluation(self.eval_env, build_actor(self.env, self.train_cfg.agent), deterministic,
                                           self.train_cfg.env.seed)
 
     def _keep_if_best(self, evaluated: PendingEvaluation, evaluation: EpisodeSummary, solved: bool):
@@ -412,16 +412,21 @@ def networks_must_fit(path: str | Path):
                        f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
 
 
-def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
-    """The deterministic policy of ``checkpoint``'s actor, built as rsl-rl's PPO builds its actor (its own
-    ``resolve_class`` and ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing
-    needs no ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
+def build_actor(env: RslRlVecEnv, agent: RunnerConfig) -> torch.nn.Module:
+    """A new actor for ``env`` as rsl-rl's PPO builds one (its own ``resolve_class`` and ``resolve_obs_groups``), on
+    the env's device, without the critic, the storage and the optimizer."""
     cfg = to_rsl_rl(agent, images=env.images)
     actor_class, actor_cfg = resolve_class(cfg["actor"])
     obs = env.get_observations()
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
         groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
-    actor = actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
+    return actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
+
+
+def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
+    """The deterministic policy of ``checkpoint``'s actor (``build_actor``): playing needs no ``OnPolicyRunner``, and
+    a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
+    actor = build_actor(env, agent)
     with networks_must_fit(checkpoint):
         actor.load_state_dict(read_checkpoint(checkpoint, env.device)["actor_state_dict"])
     return deterministic(actor.eval())
