@@ -17,6 +17,9 @@ from .streams import TorchGraph
 
 NO_LIMIT_STEPS = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""
+STEPS_PER_LAUNCH = 25
+"""Env steps an evaluation captures as one CUDA graph: the host launches a 500-step evaluation 20 times, not 500
+(which took it as long as the GPU took to run them, so the training beside it waited as long)."""
 Policy = Callable[[torch.Tensor], torch.Tensor]
 """``policy(obs (N, num_obs)) -> actions (N, num_actions)``, torch tensors on one device."""
 
@@ -57,10 +60,12 @@ class FirstEpisodesRun:
     """Runs of each env's first episode under ``policy`` (``first_episodes``) on persistent tensors. On CUDA (where
     ``capture``) one step of it, the policy, the env step and the episode bookkeeping, is captured as a CUDA graph when
     the run is made (two throw-away steps: every run then starts from a reset) and replayed: a run costs one launch
-    per env step, and training's evaluations and play.py compute with the same graph."""
+    per env step, and training's evaluations and play.py compute with the same graph. With ``steps_per_launch`` > 1
+    that many steps are captured as one more graph, which a run without ``on_step`` replays: fewer launches, so that
+    the host is free sooner (training's evaluations, which run beside the training)."""
 
-    def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True):
-        self.env, self.policy = env, policy
+    def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True, steps_per_launch: int = 1):
+        self.env, self.policy, self.steps_per_launch = env, policy, steps_per_launch
         n, device = env.num_envs, env.device
         self._obs = env.get_observations()
         self._finished = torch.zeros(n, dtype=torch.bool, device=device)
@@ -68,10 +73,15 @@ class FirstEpisodesRun:
         self._lengths = torch.zeros(n, dtype=torch.int64, device=device)
         self._returns = torch.zeros(n, dtype=torch.float32, device=device)
         self._steps = torch.zeros((), dtype=torch.int64, device=device)
-        self._graph = TorchGraph(device) if capture and torch.device(device).type == "cuda" else None
+        graphed = capture and torch.device(device).type == "cuda"
+        self._graph = TorchGraph(device) if graphed else None
+        self._chunk = TorchGraph(device) if graphed and steps_per_launch > 1 else None
         if self._graph is not None:
             self._advance()  # op by op (allocations, cuBLAS on the graph's stream)
             self._advance()  # captured
+        if self._chunk is not None:
+            self._advance(steps_per_launch)
+            self._advance(steps_per_launch)
 
     def _step(self):
         obs, reward, terminated, truncated, _ = self.env.step(self.policy(self._obs).to(torch.float32))
@@ -83,12 +93,16 @@ class FirstEpisodesRun:
         self._finished |= ended
         self._obs.copy_(obs)
 
-    def _advance(self):
+    def _advance(self, steps: int = 1):
+        """``steps`` steps (1, or ``steps_per_launch`` as one launch)."""
         with torch.inference_mode():
             if self._graph is None:
-                self._step()
-            else:
+                for _ in range(steps):
+                    self._step()
+            elif steps == 1:
                 self._graph(self._step)
+            else:
+                self._chunk(lambda: [self._step() for _ in range(steps)])
 
     def __call__(self, steps: int, on_step: Callable[[int], None] | None = None, reset: bool = True,
                  seed: int | None = None) -> FirstEpisodes:
@@ -104,7 +118,10 @@ class FirstEpisodesRun:
         self._steps.zero_()
         if on_step is not None:
             on_step(0)
-        for step in range(1, steps + 1):
+        chunks = steps // self.steps_per_launch if on_step is None and self._chunk is not None else 0
+        for _ in range(chunks):
+            self._advance(self.steps_per_launch)
+        for step in range(chunks * self.steps_per_launch + 1, steps + 1):
             self._advance()
             if on_step is not None:
                 on_step(step)
@@ -141,7 +158,7 @@ class Evaluation:
                  seed: int):
         self.actor, self.seed = actor.eval(), seed
         self.steps = whole_episode_steps(env)
-        self.run = FirstEpisodesRun(env, policy_of(self.actor))
+        self.run = FirstEpisodesRun(env, policy_of(self.actor), steps_per_launch=STEPS_PER_LAUNCH)
         self._stream = torch.cuda.Stream(env.device) if torch.device(env.device).type == "cuda" else None
         self._episodes: FirstEpisodes | None = None
         self._done: torch.cuda.Event | None = None

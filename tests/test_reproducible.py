@@ -11,7 +11,7 @@ import torch
 
 REPO = Path(__file__).resolve().parent.parent
 TIMING_KEYS = ("train_time_s", "env_steps_per_s", "collection_ms", "learning_ms")
-"""Per-iteration entries that measure the clock, not the run."""
+"""Per-iteration entries that measure the clock, not the run (and an evaluation's 'seconds')."""
 
 
 def train(device: str, log_dir: Path, iterations: int, num_envs: int) -> tuple[dict, list[dict]]:
@@ -23,6 +23,8 @@ def train(device: str, log_dir: Path, iterations: int, num_envs: int) -> tuple[d
     (checkpoint,) = log_dir.rglob(f"model_{iterations - 1}.pt")
     saved = torch.load(checkpoint, map_location="cpu", weights_only=False)
     history = [{k: v for k, v in entry.items() if k not in TIMING_KEYS} for entry in saved["infos"]["history"]]
+    for entry in history:
+        entry.get("evaluation", {}).pop("seconds", None)
     return saved, history
 
 
