@@ -17,9 +17,6 @@ from .streams import TorchGraph
 
 NO_LIMIT_STEPS = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""
-STEPS_PER_LAUNCH = 25
-"""Env steps an evaluation captures as one CUDA graph: the host launches a 500-step evaluation 20 times, not 500
-(which took it as long as the GPU took to run them, so the training beside it waited as long)."""
 Policy = Callable[[torch.Tensor], torch.Tensor]
 """``policy(obs (N, num_obs)) -> actions (N, num_actions)``, torch tensors on one device."""
 
@@ -60,12 +57,10 @@ class FirstEpisodesRun:
     """Runs of each env's first episode under ``policy`` (``first_episodes``) on persistent tensors. On CUDA (where
     ``capture``) one step of it, the policy, the env step and the episode bookkeeping, is captured as a CUDA graph when
     the run is made (two throw-away steps: every run then starts from a reset) and replayed: a run costs one launch
-    per env step, and training's evaluations and play.py compute with the same graph. With ``steps_per_launch`` > 1
-    that many steps are captured as one more graph, which a run without ``on_step`` replays: fewer launches, so that
-    the host is free sooner (training's evaluations, which run beside the training)."""
+    per env step, and training's evaluations and play.py compute with the same graph."""
 
-    def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True, steps_per_launch: int = 1):
-        self.env, self.policy, self.steps_per_launch = env, policy, steps_per_launch
+    def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True):
+        self.env, self.policy = env, policy
         n, device = env.num_envs, env.device
         self._obs = env.get_observations()
         self._finished = torch.zeros(n, dtype=torch.bool, device=device)
@@ -73,15 +68,10 @@ class FirstEpisodesRun:
         self._lengths = torch.zeros(n, dtype=torch.int64, device=device)
         self._returns = torch.zeros(n, dtype=torch.float32, device=device)
         self._steps = torch.zeros((), dtype=torch.int64, device=device)
-        graphed = capture and torch.device(device).type == "cuda"
-        self._graph = TorchGraph(device) if graphed else None
-        self._chunk = TorchGraph(device) if graphed and steps_per_launch > 1 else None
+        self._graph = TorchGraph(device) if capture and torch.device(device).type == "cuda" else None
         if self._graph is not None:
             self._advance()  # op by op (allocations, cuBLAS on the graph's stream)
             self._advance()  # captured
-        if self._chunk is not None:
-            self._advance(steps_per_launch)
-            self._advance(steps_per_launch)
 
     def _step(self):
         obs, reward, terminated, truncated, _ = self.env.step(self.policy(self._obs).to(torch.float32))
@@ -93,16 +83,12 @@ class FirstEpisodesRun:
         self._finished |= ended
         self._obs.copy_(obs)
 
-    def _advance(self, steps: int = 1):
-        """``steps`` steps (1, or ``steps_per_launch`` as one launch)."""
+    def _advance(self):
         with torch.inference_mode():
             if self._graph is None:
-                for _ in range(steps):
-                    self._step()
-            elif steps == 1:
-                self._graph(self._step)
+                self._step()
             else:
-                self._chunk(lambda: [self._step() for _ in range(steps)])
+                self._graph(self._step)
 
     def __call__(self, steps: int, on_step: Callable[[int], None] | None = None, reset: bool = True,
                  seed: int | None = None) -> FirstEpisodes:
@@ -118,10 +104,7 @@ class FirstEpisodesRun:
         self._steps.zero_()
         if on_step is not None:
             on_step(0)
-        chunks = steps // self.steps_per_launch if on_step is None and self._chunk is not None else 0
-        for _ in range(chunks):
-            self._advance(self.steps_per_launch)
-        for step in range(chunks * self.steps_per_launch + 1, steps + 1):
+        for step in range(1, steps + 1):
             self._advance()
             if on_step is not None:
                 on_step(step)
@@ -147,41 +130,8 @@ def whole_episode_steps(env: BatchedEnv) -> int:
     return env.max_episode_length if env.cfg.task.episode_length_s is not None else NO_LIMIT_STEPS
 
 
-class Evaluation:
-    """The evaluation that decides 'solved': each env's first episode from a reset seeded with ``seed`` to its end
-    (``whole_episode_steps``), what ``play.py --headless`` plays with that env count and seed, of ``actor`` (a module
-    like the training's actor: ``start`` copies the training's weights into it; ``policy_of(actor)`` is its policy).
-    On CUDA the episodes run on a stream of their own, beside the training, which may change its actor meanwhile;
-    ``summary`` waits for them."""
-
-    def __init__(self, env: BatchedEnv, actor: torch.nn.Module, policy_of: Callable[[torch.nn.Module], Policy],
-                 seed: int):
-        self.actor, self.seed = actor.eval(), seed
-        self.steps = whole_episode_steps(env)
-        self.run = FirstEpisodesRun(env, policy_of(self.actor), steps_per_launch=STEPS_PER_LAUNCH)
-        self._stream = torch.cuda.Stream(env.device) if torch.device(env.device).type == "cuda" else None
-        self._episodes: FirstEpisodes | None = None
-        self._done: torch.cuda.Event | None = None
-
-    def start(self, actor: torch.nn.Module):
-        """Run the episodes of ``actor``'s current weights (on CUDA: queued on the evaluation's stream; ``actor`` may
-        change as soon as this returns)."""
-        if self._stream is None:
-            self.actor.load_state_dict(actor.state_dict())
-            self._episodes = self.run(self.steps, seed=self.seed)
-            return
-        training = torch.cuda.current_stream(self._stream.device)
-        self._stream.wait_stream(training)
-        with torch.cuda.stream(self._stream):
-            self.actor.load_state_dict(actor.state_dict())
-            training.wait_stream(self._stream)  # the training changes the weights only once they are copied
-            self._episodes = self.run(self.steps, seed=self.seed)
-            self._done = torch.cuda.Event()
-            self._done.record(self._stream)
-
-    def summary(self) -> EpisodeSummary:
-        """The means over the started run's episodes (waits for them)."""
-        if self._done is not None:
-            self._done.synchronize()
-        episodes, self._episodes, self._done = self._episodes, None, None
-        return episodes.summary(min(self.steps, self.run.env.max_episode_length))
+def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:
+    """Each env's first episode from a reset seeded with ``seed`` to its end (``whole_episode_steps``): what
+    ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved')."""
+    steps = whole_episode_steps(run.env)
+    return run(steps, seed=seed).summary(min(steps, run.env.max_episode_length))

@@ -49,10 +49,6 @@ class EvalConfig:
     max_interval: Count = 25
     """... and after this many iterations without an evaluation (a policy that fails only through its exploration
     noise)."""
-    overlap_iterations: NonNegativeInt = 16
-    """On CUDA an evaluation runs beside the training (on a stream of its own, with a copy of the policy) and its
-    result is taken this many iterations later, whether it took less or more (a fixed number: the same seed, the
-    same run); 0: training waits for each, as it always does on the CPU."""
 
 
 @dataclass

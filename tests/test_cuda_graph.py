@@ -52,18 +52,3 @@ def test_graphed_training_solves(cuda):
     trained.eval_env = cartpole_warp.make_env(num_envs=trained.train_cfg.eval.num_envs, device=cuda, seed=0)
     trained.learn(150)
     assert trained.stop_reason == "solved", trained.progress.history[-1]
-
-
-def test_an_evaluation_launched_in_chunks_of_steps_plays_the_same_episodes(cuda):
-    from cartpole_warp.evaluation import FirstEpisodesRun
-
-    def policy(obs):  # a linear feedback that holds some poles up and drops others
-        return (obs @ torch.tensor([0.0, 0.0, -1.5, -0.1], device=obs.device)).clamp(-1, 1)[:, None]
-
-    runs = [FirstEpisodesRun(cartpole_warp.make_env(num_envs=64, device=cuda, seed=0), policy, steps_per_launch=k)
-            for k in (1, 25)]
-    assert runs[0]._chunk is None and runs[1]._chunk is not None
-    episodes = [run(610, seed=3) for run in runs]  # 24 chunks of 25 steps and 10 single steps
-    assert 0 < episodes[0].reached_limit.sum() < 64, "some episodes fail, some reach the limit"
-    for field in ("returns", "lengths", "reached_limit"):
-        assert torch.equal(getattr(episodes[0], field), getattr(episodes[1], field)), field

@@ -9,7 +9,7 @@ import torch
 from conftest import DEVICE
 
 from cartpole_warp import tasks
-from cartpole_warp.evaluation import rollout, whole_episode_steps
+from cartpole_warp.evaluation import FirstEpisodesRun, evaluate
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runs import BEST_CHECKPOINT, list_checkpoints, play_checkpoint
 from cartpole_warp.rl.training import Training
@@ -25,12 +25,12 @@ FAILING = EpisodeSummary(100, 10.0, 20.0, 0.5, 0.0)
 def make_training(tmp_path, logger="none", **eval_settings) -> Training:
     """A balance run of 64 training envs and 32 evaluation envs on the test device that barely learns (fixed learning
     rate of 1e-12): its policy stays the one the test writes into the actor. It trains all its iterations unless a
-    test sets ``stop_when_solved``; each evaluation is taken at once (also on CUDA) unless ``eval_settings`` say."""
+    test sets ``stop_when_solved``."""
     cfg = train_config("cartpole-balance")
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 64, DEVICE, logger, str(tmp_path)
     cfg.stop_when_solved = False
     cfg.agent.algorithm.schedule, cfg.agent.algorithm.learning_rate = "fixed", 1e-12
-    for name, value in {"num_envs": 32, "overlap_iterations": 0, **eval_settings}.items():
+    for name, value in {"num_envs": 32, **eval_settings}.items():
         setattr(cfg.eval, name, value)
     return Training(cfg, tmp_path / "run")
 
@@ -108,29 +108,10 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
     env = tasks.get(cfg.task).env_class(dataclasses.replace(cfg.env, num_envs=cfg.eval.num_envs))
     player = TaskRunner(RslRlVecEnv(env), cfg, None)
     player.load(str(play_checkpoint(run)), load_cfg={"actor": True})
-    played = rollout(env, player.policy(), whole_episode_steps(env), seed=cfg.env.seed)
+    played = evaluate(FirstEpisodesRun(env, player.policy()), cfg.env.seed)
     evaluated = history[0]["evaluation"]
     assert (played.episodes, played.mean_return, played.time_limit_fraction) == (
         evaluated["episodes"], evaluated["mean_return"], evaluated["time_limit_fraction"]), "the same episodes"
-
-
-def test_an_evaluation_taken_iterations_later_judges_and_keeps_the_policy_it_started_with(tmp_path):
-    """On CUDA an evaluation runs beside the training, whose policy changes meanwhile, and is taken
-    ``eval.overlap_iterations`` later: here with a lag of 2 on the test device."""
-    training = make_training(tmp_path, min_interval=1, max_interval=1)
-    training.runner._eval_lag = 2
-    set_policy_mean(training, BALANCING_GAINS, std=1.0)
-    training_episodes(training, FAILING)
-    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
-    training.runner.train_cfg.stop_when_solved = True
-    training.runner.learn(10)
-    history = training.runner.progress.history
-    assert ["evaluation" in h for h in history] == [False, False, True], "started after iteration 1, taken at 3"
-    assert history[2]["evaluation"]["iteration"] == 0 and history[2]["evaluation"]["time_limit_fraction"] == 1.0
-    assert training.runner.stop_reason == "solved" and training.runner.progress.solved_at["iterations"] == 3
-    best = torch.load(training.run_dir / BEST_CHECKPOINT, weights_only=False)
-    assert best["iter"] == 0, "the evaluated weights, not the ones trained since"
-    assert torch.equal(best["actor_state_dict"]["mlp.0.weight"][0].cpu(), torch.tensor(BALANCING_GAINS))
 
 
 @pytest.mark.parametrize("name", tasks.names())

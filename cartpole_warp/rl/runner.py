@@ -15,7 +15,6 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 
 # isort: split
 import contextlib
-import copy
 import dataclasses
 import io
 import logging
@@ -33,7 +32,7 @@ from tensordict import TensorDict
 from ..agent import RunnerConfig
 from ..deprecation import renamed
 from ..env import BatchedEnv
-from ..evaluation import Evaluation, Policy
+from ..evaluation import FirstEpisodesRun, Policy, evaluate
 from ..files import atomic_write
 from ..statistics import EpisodeStats, EpisodeSummary
 from ..streams import PhaseClock, TorchGraph
@@ -68,22 +67,13 @@ def in_git_repository(path: str) -> bool:
     return any((parent / ".git").exists() for parent in Path(path).resolve().parents)
 
 
-@dataclasses.dataclass
-class PendingEvaluation:
-    """An evaluation started after ``iteration``, and the training state it evaluates (``alg.save()``'s, copied)."""
-
-    iteration: int
-    checkpoint: dict
-
-
 class TaskRunner(OnPolicyRunner):
     """OnPolicyRunner for one training run: ``log_dir`` None writes nothing (no metrics, no checkpoints).
 
     With an ``eval_env`` (``cfg.eval.num_envs`` envs of the task, seeded with the run's seed) the deterministic policy
-    is evaluated over whole episodes (``evaluation.Evaluation``: play.py's episodes) when an iteration's training
+    is evaluated over whole episodes (``evaluation.evaluate``: play.py's episodes) when an iteration's training
     episodes meet the task's rule (at most every ``eval.min_interval`` iterations) and at least every
-    ``eval.max_interval``; on CUDA beside the training, its result taken ``eval.overlap_iterations`` later. Only an
-    evaluation decides 'solved', and the best one so far is kept as ``model_best.pt`` (the weights it evaluated).
+    ``eval.max_interval``; only an evaluation decides 'solved', and the best one so far is kept as ``model_best.pt``.
     """
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
@@ -96,10 +86,7 @@ class TaskRunner(OnPolicyRunner):
         task = cfg.task_spec
         self.solved_rule, self.play_metric = task.solved, task.play_metric
         self.eval_env = eval_env
-        self._evaluation: Evaluation | None = None
-        self._pending: PendingEvaluation | None = None
-        self._eval_lag = cfg.eval.overlap_iterations if torch.device(self.device).type == "cuda" else 0
-        """Iterations between an evaluation's start and its result being taken (``eval.overlap_iterations``)."""
+        self._evaluation: FirstEpisodesRun | None = None
         self._last_eval_iteration = -1
         self.progress = Progress()
         self.episodes = EpisodeStats(env.device, env.max_episode_length)
@@ -205,10 +192,7 @@ class TaskRunner(OnPolicyRunner):
         now = time.perf_counter()
         iteration_time = now - self._tick
         steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.gpu_world_size
-        if self._pending is None and self._evaluation_due(it, stats):
-            self._start_evaluation(it)
-        evaluated = self._pending if self._evaluation_taken(it) else None
-        evaluation = self._take_evaluation() if evaluated is not None else None
+        evaluation = self._evaluate_if_due(it, stats)
         self._tick = time.perf_counter()
         solved = evaluation is not None and self.solved_rule(evaluation)
         p = self.progress
@@ -218,14 +202,13 @@ class TaskRunner(OnPolicyRunner):
                   **dataclasses.asdict(stats), "env_steps_per_s": steps / iteration_time,
                   "collection_ms": collect_time * 1e3, "learning_ms": learn_time * 1e3, "solved": solved}
         if evaluation is not None:
-            record["evaluation"] = dataclasses.asdict(evaluation) | {"iteration": evaluated.iteration,
-                                                                     "seconds": round(self._tick - now, 3)}
+            record["evaluation"] = dataclasses.asdict(evaluation) | {"seconds": round(self._tick - now, 3)}
         p.history.append(record)
         if solved and p.solved_at is None:
             p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
                            self.play_metric: getattr(evaluation, self.play_metric)}
         if evaluation is not None:
-            self._keep_if_best(evaluated, evaluation, solved)
+            self._keep_if_best(it, evaluation, solved)
         if self.train_cfg.console == "rsl_rl":
             self.logger.log(it=it, start_it=self._first_iteration, total_it=self._end_iteration,
                             collect_time=collect_time, learn_time=learn_time, loss_dict=loss_dict,
@@ -233,57 +216,45 @@ class TaskRunner(OnPolicyRunner):
                             rnd_weight=None)
         elif self.gpu_global_rank == 0:
             self._write_metrics(it, stats, evaluation, loss_dict, steps / iteration_time, collect_time, learn_time)
-            print(self._progress_line(it, stats, steps / iteration_time, evaluation, evaluated, solved, now),
-                  flush=True)
+            print(self._progress_line(it, stats, steps / iteration_time, evaluation, solved, now), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
             self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
         self.stop_reason = joint_stop(wanted, self.device, self.is_distributed)
 
-    def _evaluation_due(self, it: int, stats: EpisodeSummary) -> bool:
-        """Whether the policy after iteration ``it`` is to be evaluated (never without an ``eval_env``)."""
+    def _evaluate_if_due(self, it: int, stats: EpisodeSummary) -> EpisodeSummary | None:
+        """The evaluation of the policy after iteration ``it``, where one is due (None otherwise, and always without an
+        ``eval_env``)."""
         if self.eval_env is None:
-            return False
+            return None
         since = it - self._last_eval_iteration
         limits = self.train_cfg.eval
-        return since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))
-
-    def _start_evaluation(self, it: int):
-        """Evaluate the policy after iteration ``it`` (on CUDA beside the training), keeping the training state it
-        evaluates for ``model_best.pt``."""
+        if not (since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))):
+            return None
         self._last_eval_iteration = it
         self.prepare_evaluation()
-        self._pending = PendingEvaluation(it, copy.deepcopy(self.alg.save()))
-        self._evaluation.start(self.alg.get_policy())
-
-    def _evaluation_taken(self, it: int) -> bool:
-        """Whether the pending evaluation's result is taken after iteration ``it``: ``eval.overlap_iterations`` after it
-        started (at once on the CPU), at the last iteration, or when a stop was asked for."""
-        pending = self._pending
-        return pending is not None and (it - pending.iteration >= self._eval_lag or it + 1 >= self._end_iteration
-                                        or self._stop_requested is not None)
-
-    def _take_evaluation(self) -> EpisodeSummary:
-        self._pending = None
-        return self._evaluation.summary()
+        self.alg.eval_mode()
+        try:
+            return evaluate(self._evaluation, self.train_cfg.env.seed)
+        finally:
+            self.alg.train_mode()
 
     def prepare_evaluation(self):
-        """Make the evaluation of the policy on ``eval_env`` (on a GPU: capture its CUDA graph) if not made yet;
+        """Make the evaluation's run of the policy on ``eval_env`` (on a GPU: capture its CUDA graph) if not made yet;
         ``Training`` calls it while setting up, so that the first evaluation costs no capture."""
         if self.eval_env is not None and self._evaluation is None:
-            self._evaluation = Evaluation(self.eval_env, build_actor(self.env, self.train_cfg.agent), deterministic,
-                                          self.train_cfg.env.seed)
+            self._evaluation = FirstEpisodesRun(self.eval_env, self.policy())
+            self.alg.train_mode()
 
-    def _keep_if_best(self, evaluated: PendingEvaluation, evaluation: EpisodeSummary, solved: bool):
-        """Save ``model_best.pt`` (the training state that was evaluated) where this evaluation beats the best so far
-        (solved first, then the play metric)."""
+    def _keep_if_best(self, it: int, evaluation: EpisodeSummary, solved: bool):
+        """Save ``model_best.pt`` where this evaluation beats the best so far (solved first, then the play metric)."""
         score = (solved, getattr(evaluation, self.play_metric) or 0.0)
         best = self.progress.best
         if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):
             return
-        self.progress.best = {"iteration": evaluated.iteration, "solved": solved, self.play_metric: score[1]}
+        self.progress.best = {"iteration": it, "solved": solved, self.play_metric: score[1]}
         if self.run_dir is not None:
-            self._write_checkpoint(self.run_dir / BEST_CHECKPOINT, evaluated.checkpoint, evaluated.iteration)
+            self.save(str(self.run_dir / BEST_CHECKPOINT))
 
     def _write_metrics(self, it: int, stats: EpisodeSummary, evaluation: EpisodeSummary | None, loss_dict: dict,
                        steps_per_s: float, collect_time: float, learn_time: float):
@@ -310,7 +281,7 @@ class TaskRunner(OnPolicyRunner):
             writer.add_scalar(tag, value, it)
 
     def _progress_line(self, it: int, stats: EpisodeSummary, steps_per_s: float, evaluation: EpisodeSummary | None,
-                       evaluated: PendingEvaluation | None, solved: bool, now: float) -> str:
+                       solved: bool, now: float) -> str:
         done = it + 1 - self._first_iteration
         eta_s = (now - self._start) / done * (self._end_iteration - it - 1)
         limit = self.env.max_episode_length
@@ -329,20 +300,17 @@ class TaskRunner(OnPolicyRunner):
         line = (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
                 f" | ETA {format_duration(eta_s)}")
         if evaluation is not None:
-            of = f" of it {evaluated.iteration + 1}" if evaluated.iteration != it else ""
-            line += (f" | eval{of} {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
+            line += (f" | eval {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
                      f"{': SOLVED' if solved else ''}")
         return line
 
     def save(self, path: str, infos: dict | None = None) -> None:
         """Write the models, optimizer, iteration and progress to ``path`` atomically."""
-        self._write_checkpoint(Path(path), self.alg.save(), self.current_learning_iteration, infos)
-
-    def _write_checkpoint(self, path: Path, saved: dict, iteration: int, infos: dict | None = None):
-        """``saved`` (``alg.save()``'s dict) with the iteration and the progress (or ``infos``), atomically."""
-        saved = saved | {"iter": iteration, "infos": infos if infos is not None else dataclasses.asdict(self.progress)}
-        atomic_write(path, lambda tmp: torch.save(saved, tmp))
-        self.logger.save_model(str(path), iteration)
+        saved = self.alg.save()
+        saved["iter"] = self.current_learning_iteration
+        saved["infos"] = infos if infos is not None else dataclasses.asdict(self.progress)
+        atomic_write(Path(path), lambda tmp: torch.save(saved, tmp))
+        self.logger.save_model(path, self.current_learning_iteration)
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
              map_location: str | None = None) -> dict:
@@ -412,21 +380,16 @@ def networks_must_fit(path: str | Path):
                        f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
 
 
-def build_actor(env: RslRlVecEnv, agent: RunnerConfig) -> torch.nn.Module:
-    """A new actor for ``env`` as rsl-rl's PPO builds one (its own ``resolve_class`` and ``resolve_obs_groups``), on
-    the env's device, without the critic, the storage and the optimizer."""
+def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
+    """The deterministic policy of ``checkpoint``'s actor, built as rsl-rl's PPO builds its actor (its own
+    ``resolve_class`` and ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing
+    needs no ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
     cfg = to_rsl_rl(agent, images=env.images)
     actor_class, actor_cfg = resolve_class(cfg["actor"])
     obs = env.get_observations()
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
         groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
-    return actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
-
-
-def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
-    """The deterministic policy of ``checkpoint``'s actor (``build_actor``): playing needs no ``OnPolicyRunner``, and
-    a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
-    actor = build_actor(env, agent)
+    actor = actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
     with networks_must_fit(checkpoint):
         actor.load_state_dict(read_checkpoint(checkpoint, env.device)["actor_state_dict"])
     return deterministic(actor.eval())

@@ -156,8 +156,7 @@ class RunSummary:
     evaluations: int
     """Evaluations the run has had."""
     evaluation_s: float
-    """The seconds the training waited for them, part of ``train_time_s`` (on CUDA an evaluation runs beside the
-    training: ``eval.overlap_iterations``)."""
+    """Their seconds, part of ``train_time_s``."""
     best: dict | None
     """The best evaluation (``Progress.best``): the policy of ``model_best.pt``."""
     max_episode_length: int | None

@@ -12,7 +12,7 @@ without the dashes, several in one quoted string; a list value is comma-separate
 
 It prints two markdown tables. Per seed, as each run ends: the iteration and training seconds at which it was solved,
 the milliseconds of one iteration's collection and learning (medians, measured on the device), env-steps/s including
-PPO, the evaluations of the whole run and the seconds the training waited for them, the task's play metric
+PPO, the evaluations of the whole run and their seconds (part of the training's), the task's play metric
 (``Task.play_metric``: the fraction of episodes that reached the time limit for the balance tasks, the reward per step
 of full episodes for the swing-up) in the evaluation that decided 'solved', and with ``--play`` the same metric of
 play.py's run of the run's best policy, next to it so that the two cannot disagree silently. Per variant, at the end:
@@ -87,7 +87,7 @@ class RunResult:
     with ``--play-last``)."""
     evaluations: int | None = None
     evaluation_s: float | None = None
-    """The seconds the training waited for the evaluations (part of its seconds)."""
+    """The evaluations' seconds, part of the training's."""
     error: str | None = None
     """The failed command's last output lines (the sweep goes on with the next run)."""
 
