@@ -186,11 +186,12 @@ def image_dtype(cfg: CameraConfig):
 
 def bytes_per_env(cfg: CameraConfig) -> int:
     """Device memory the frames take per env: the observation stack, its final copy and the copy of that which each
-    step hands out in ``info``, two rendered frames, the ray-tracer's per-view data (a few hundred bytes); the physics,
-    the renderer's own buffers and torch's allocator add to it (docs/benchmarks.md has both measured)."""
+    step hands out in ``info``, the rendered frames (after the physics, after the resets, and the passes' frames: at
+    most one more), the ray-tracer's per-view data (a few hundred bytes); the physics, the renderer's own buffers and
+    torch's allocator add to it (docs/benchmarks.md has both measured)."""
     pixels = cfg.width_px * cfg.height_px
     stacks = 3 * pixels * cfg.channels * cfg.frame_stack * (1 if cfg.image == "rgb" else 4)
-    return stacks + 2 * pixels * 4 + 512
+    return stacks + 3 * pixels * 4 + 512
 
 
 def check_memory(cfg: CameraConfig, num_envs: int, device: str):
