@@ -103,6 +103,21 @@ print("constant", tensordict.utils._lock_warn._dynamo_marked_constant, torch.com
     assert allowed == "allowed True" and constant == "constant True torch.compiler"
 
 
+def test_the_training_imports_after_dynamo_with_tensordicts_marks_made():
+    """A script that loaded Dynamo first (a torch.compile of its own) imports the training: tensordict marks its
+    functions at once (an endless recursion before the fix)."""
+    code = """
+import torch._dynamo
+import cartpole_warp.rl.training
+from cartpole_warp.wrappers import tensordict_import
+import tensordict.utils
+print(len(tensordict_import._waiting), tensordict.utils._lock_warn._dynamo_marked_constant)
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.split() == ["0", "True"], result.stdout
+
+
 @pytest.mark.slow
 def test_warmup_fills_an_empty_kernel_cache_so_that_training_compiles_nothing(tmp_path):
     cache = tmp_path / "warp-cache"

@@ -19,11 +19,12 @@ _waiting: list[tuple[str, Callable]] = []
 """Marks not yet given to Dynamo: (marker, function)."""
 
 
-def _deferred(marker: str) -> Callable:
+def _deferred(marker: str, original: Callable) -> Callable:
     def mark(fn):
-        """The marker itself once Dynamo is loaded, else later (``mark_for_compile``); returns ``fn``, as it does."""
+        """The ``original`` marker where Dynamo is loaded already, else later (``mark_for_compile``); returns ``fn``,
+        as it does."""
         if "torch._dynamo" in sys.modules:
-            return getattr(torch.compiler, marker)(fn)
+            return original(fn)
         _waiting.extend((marker, f) for f in (fn if isinstance(fn, (list, tuple)) else [fn]))
         return fn
 
@@ -39,8 +40,8 @@ def mark_for_compile() -> None:
 
 if "tensordict" not in sys.modules:
     _markers = {name: getattr(torch.compiler, name) for name in MARKERS}
-    for _name in MARKERS:
-        setattr(torch.compiler, _name, _deferred(_name))
+    for _name, _marker in _markers.items():
+        setattr(torch.compiler, _name, _deferred(_name, _marker))
     try:
         import tensordict  # noqa: F401
     finally:
