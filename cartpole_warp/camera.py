@@ -218,7 +218,8 @@ env to draw and 1.04 ms with random actions (13% of the envs reset per step; doc
 class Camera:
     """The views of one scene's envs (a CPU shard's, or all of them): ``render`` after the physics, ``render_resets``
     after the resets, into persistent frames (graph-capturable). ``views_per_pass``: views drawn at once for the
-    envs that reset (default: every env on the CPU, where a skipped view costs nothing, and a sixteenth on CUDA)."""
+    envs that reset (default: a sixteenth of the envs on CUDA; every env, one pass without a loop, on the CPU, where
+    a skipped view costs nothing, and where the CUDA driver has no conditional graph nodes, before CUDA 12.4)."""
 
     def __init__(self, scene, cfg: CameraConfig, device: str, views_per_pass: int | None = None):
         from newton.sensors import SensorCamera
@@ -241,7 +242,8 @@ class Camera:
         """What the views of reset envs saw after their reset."""
         self.reset = wp.zeros(n, dtype=wp.bool, device=device)
         if views_per_pass is None:
-            views_per_pass = n if device == "cpu" else -(-n // PASSES_PER_RENDER)
+            loop = device != "cpu" and wp.is_conditional_graph_supported()
+            views_per_pass = -(-n // PASSES_PER_RENDER) if loop else n
         self.views_per_pass = min(max(views_per_pass, 1), n)
         self._ended_envs = wp.zeros(n, dtype=wp.int32, device=device)
         self._listed, self._next_listed, self._more = (wp.zeros(1, dtype=wp.int32, device=device) for _ in range(3))
@@ -260,7 +262,7 @@ class Camera:
 
     def render_resets(self, terminated: wp.array, truncated: wp.array):
         """Place the bodies of the envs whose episode ended (``terminated | truncated``) and render their views into
-        ``first_frame``, ``views_per_pass`` at a time."""
+        ``first_frame``, ``views_per_pass`` at a time (in a loop on the device where that is fewer than all)."""
         device = self.frame.device
         self._listed.zero_()
         wp.launch(list_resets, dim=self.scene.num_envs, inputs=[terminated, truncated],
@@ -268,7 +270,10 @@ class Camera:
         wp.launch(first_pass, dim=1, inputs=[self._listed], outputs=[self._next_listed, self._more], device=device)
         self.place_bodies(self.reset)
         self.scene.model.bvh_refit_shapes(self.scene.state_0)
-        wp.capture_while(self._more, self._render_pass)
+        if self.views_per_pass < self.scene.num_envs:
+            wp.capture_while(self._more, self._render_pass)
+        else:
+            self._render_pass()
 
     def _render_pass(self):
         device = self.frame.device
