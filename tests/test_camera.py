@@ -82,6 +82,7 @@ def test_frames_stack_shift_each_step_and_refill_at_the_reset(size_px, make):
     assert torch.equal(after[:, :6], before[:, 3:]), "the older frames move back by one"
     newest = witness.set_state(env.get_state_observations()).cpu()  # the state after the step, as a reset
     assert torch.equal(after[:, 6:], newest[:, 6:]), "the newest frame is the state after the step"
+    assert torch.equal(after[:, 6:], rgb_planes(env.cameras[0].frame)), "the newest frame is the view's colours"
     assert not torch.equal(after[:, 6:], before[:, 6:])
     env.episode_length_buf = torch.full((8,), env.max_episode_length - 1, dtype=torch.int32, device=env.device)
     obs, _, _, truncated, info = env.step(torch.zeros(8, 1, device=env.device))
@@ -89,6 +90,13 @@ def test_frames_stack_shift_each_step_and_refill_at_the_reset(size_px, make):
     assert truncated.all()
     assert torch.equal(info["final_obs"][:, :6].cpu(), after[:, 3:]), "the final stack shifted like any other"
     assert all(torch.equal(obs[:, :channels], obs[:, k:k + channels]) for k in (3, 6)), "the new episode's start"
+    assert torch.equal(obs[:, :channels], rgb_planes(env.cameras[0].first_frame)), "its colours"
+
+
+def rgb_planes(frame) -> torch.Tensor:
+    """(N, 3, H, W) uint8 red, green and blue planes of a view's packed RGBA pixels (N, H, W), decoded here."""
+    rgba = torch.from_numpy(frame.numpy().astype(np.int64))
+    return torch.stack([(rgba >> (8 * c)) & 255 for c in range(3)], dim=1).to(torch.uint8)
 
 
 def test_the_envs_that_reset_are_drawn_alike_in_passes_of_a_few_views(make):
