@@ -8,10 +8,9 @@
 
 from __future__ import annotations
 
-import functools
 import importlib.util
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +31,9 @@ def video_available() -> bool:
     return importlib.util.find_spec("imageio") is not None and importlib.util.find_spec("imageio_ffmpeg") is not None
 
 
-def write_mp4(path: Path, images: list[np.ndarray], fps: float) -> Path:
-    """``images`` (H, W, 3) uint8 as an H.264 MP4 at ``fps``, every image one frame (imageio + ffmpeg; moviepy, which
-    RecordVideo uses, drops the last frame for some counts and rates)."""
+def write_mp4(path: Path, images: Iterable[np.ndarray], fps: float) -> Path:
+    """``images`` (H, W, 3) uint8 as an H.264 MP4 at ``fps``, every image one frame, taken one at a time (imageio +
+    ffmpeg; moviepy, which RecordVideo uses, drops the last frame for some counts and rates)."""
     import imageio.v2 as imageio
 
     def write(tmp):
@@ -95,19 +94,18 @@ class Recorder:
             recordings.append(self.out_dir / "cartpole.viser")
         view = SideView.around(self.geometry, self.frames, width_px=800)
 
-        @functools.cache
-        def picture(step: int):  # each step's side view drawn once, for the GIFs and the MP4 alike
+        def picture(step: int):
             return view.image(self.frames[step], f"t = {step * self.env_dt:5.2f} s")
 
-        gif_steps = range(0, len(self.frames), GIF_STRIDE)
-        gif_pictures = [picture(step) for step in gif_steps]
-        written = [write_gif(self.out_dir / "cartpole.gif", gif_pictures, GIF_STRIDE * self.env_dt)]
+        gifs = {step: picture(step) for step in range(0, len(self.frames), GIF_STRIDE)}  # drawn once for GIFs and MP4
+        written = [write_gif(self.out_dir / "cartpole.gif", list(gifs.values()), GIF_STRIDE * self.env_dt)]
         if self.camera is not None:
             cameras = camera_pictures(np.stack(self.camera_frames), self.camera[1])
-            written.append(write_gif(self.out_dir / "policy_view.gif", gif_pictures, GIF_STRIDE * self.env_dt,
+            written.append(write_gif(self.out_dir / "policy_view.gif", list(gifs.values()), GIF_STRIDE * self.env_dt,
                                      cameras=cameras))
         if video_available():
             shown = range(min(len(self.frames), self.video_length or len(self.frames)))
-            written.append(write_mp4(self.out_dir / "cartpole.mp4", [np.asarray(picture(step)) for step in shown],
+            written.append(write_mp4(self.out_dir / "cartpole.mp4",
+                                     (np.asarray(gifs[step] if step in gifs else picture(step)) for step in shown),
                                      1.0 / self.env_dt))
         return [*written, *recordings]
