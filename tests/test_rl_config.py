@@ -12,6 +12,7 @@ from rsl_rl.utils import resolve_callable
 
 from cartpole_warp import tasks
 from cartpole_warp.config import ConfigError
+from cartpole_warp.presets import load_preset, presets
 from cartpole_warp.rl.config import RunnerConfig, train_config
 from cartpole_warp.rl.runner import to_rsl_rl
 from cartpole_warp.train import resolve
@@ -110,6 +111,27 @@ def test_help_all_lists_every_config_field_with_its_docstring_and_the_tasks(task
         assert flag in text, flag
     for name in tasks.names():
         assert f"{name} {tasks.get(name).summary}" in text, f"--help lists the task {name}"
+
+
+@pytest.mark.parametrize("preset", presets())
+def test_every_shipped_preset_applies_to_its_task_and_is_refused_by_the_others(preset):
+    task = load_preset(preset).get("task")
+    assert task is None or task in tasks.names(), f"{preset} names a registered task"
+    for name in tasks.names():
+        if task in (None, name):
+            assert train_config(name, preset).validate().task == name
+        else:
+            with pytest.raises(ConfigError, match=f"preset {preset!r} is for task {task!r}, not {name!r}"):
+                train_config(name, preset)
+
+
+def test_the_gpu_swingup_preset_changes_only_the_mini_batches_and_the_evaluations_cadence():
+    default, gpu = train_config("cartpole-swingup"), train_config("cartpole-swingup", "swingup_gpu")
+    assert (gpu.agent.algorithm.num_mini_batches, gpu.eval.max_interval) == (4, 50)
+    assert (default.agent.algorithm.num_mini_batches, default.eval.max_interval) == (8, 25)
+    changed = dataclasses.replace(gpu, agent=dataclasses.replace(gpu.agent, algorithm=dataclasses.replace(
+        gpu.agent.algorithm, num_mini_batches=8)), eval=dataclasses.replace(gpu.eval, max_interval=25))
+    assert changed == default, "every other setting is the swing-up's"
 
 
 def test_runner_config_is_rsl_rl_train_cfg():
