@@ -62,17 +62,18 @@ class CartThreePoleSwingupEnv(CartTwoPoleSwingupEnv):
     functions = swingup.swingup_functions(3)
 
 
-for env_class, words, min_reward_per_step, width, gym_id in (
-        (CartTwoPoleSwingupEnv, "two", 0.7, 128, "CartTwoPoleSwingup"),
-        (CartThreePoleSwingupEnv, "three", 0.5, 256, "CartThreePoleSwingup")):
+for env_class, words, min_reward_per_step, width, steps_per_env, gym_id in (
+        (CartTwoPoleSwingupEnv, "two", 0.7, 128, 32, "CartTwoPoleSwingup"),
+        (CartThreePoleSwingupEnv, "three", 0.5, 256, 16, "CartThreePoleSwingup")):
     # thousands of iterations: an evaluation at most every 100 (25 took a third of the two-pole's training time);
-    # wider networks than the single pole's 32 x 32, with which the chains levelled off (docs/benchmarks.md)
+    # wider networks than the single pole's 32 x 32, with which the chains levelled off, and for two poles 32 steps
+    # per env, with which every seed solved (docs/benchmarks.md)
     networks = {"hidden_dims": [width, width]}
     register(replace(
         swingup.TASK, name=f"cart-{words}-pole-swingup", env_class=env_class,
         summary=f"swing a chain of {words} poles up and hold it (dm_control's {words}_poles, 10 N cart, 10 s episodes)",
         solved=SolvedRule(min_reward_per_step=min_reward_per_step, full_episodes_only=True),
-        defaults=merge(swingup.TASK.defaults, {"agent": {"max_iterations": 15000, "actor": networks,
-                                                         "critic": networks},
+        defaults=merge(swingup.TASK.defaults, {"agent": {"max_iterations": 15000, "num_steps_per_env": steps_per_env,
+                                                         "actor": networks, "critic": networks},
                                                "eval": {"max_interval": 100}}),
         gym_ids={f"cartpole_warp/{gym_id}-v0": None}))
