@@ -113,8 +113,9 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
     scripted = torch.jit.load(str(run / "exported" / "policy.pt"))(torch.from_numpy(obs)).detach().numpy()
     checkpoint = policy_actions(run, "model_1.pt", obs)
     assert onnx_actions.shape == (batch, 1)
-    np.testing.assert_allclose(onnx_actions, scripted, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(onnx_actions, checkpoint, rtol=1e-5, atol=1e-6)
+    # the same float32 network summed in another order (onnxruntime's GEMMs): ~1e-6 apart through 256-wide layers
+    np.testing.assert_allclose(onnx_actions, scripted, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(onnx_actions, checkpoint, rtol=1e-4, atol=1e-5)
 
 
 def policy_actions(run, checkpoint: str, obs: np.ndarray) -> np.ndarray:
