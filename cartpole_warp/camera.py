@@ -68,6 +68,16 @@ def sample(frame: wp.array2d(dtype=wp.float32), env: int, u: int, c: int,  # noq
     return frame[env, u]
 
 
+@wp.func
+def refill(first_frame: wp.array2d(dtype=Any), env: int, u: int, channels: int, frames: int,
+           stack: wp.array3d(dtype=Any)):
+    """Every frame of unit u of env ``env``'s stack set to that unit of ``first_frame`` (a new episode's first)."""
+    for c in range(channels):
+        first = sample(first_frame, env, u, c, stack)
+        for f in range(frames):
+            stack[env, f * channels + c, u] = first
+
+
 @wp.kernel
 def list_resets(terminated: wp.array(dtype=wp.bool), truncated: wp.array(dtype=wp.bool),
                 reset: wp.array(dtype=wp.bool), listed: wp.array(dtype=wp.int32), ended_envs: wp.array(dtype=wp.int32)):
@@ -133,10 +143,7 @@ def push_frame(frame: wp.array2d(dtype=Any), first_frame: wp.array2d(dtype=Any),
                 final_stack[env, i, u] = stack[env, i + channels, u]
             for c in range(channels):
                 final_stack[env, last + c, u] = sample(frame, env, u, c, stack)
-        for c in range(channels):
-            first = sample(first_frame, env, u, c, stack)
-            for f in range(frames):
-                stack[env, f * channels + c, u] = first
+        refill(first_frame, env, u, channels, frames, stack)
     else:
         for i in range(last):
             stack[env, i, u] = stack[env, i + channels, u]
@@ -150,10 +157,7 @@ def fill_stack(frame: wp.array2d(dtype=Any), mask: wp.array(dtype=wp.bool), chan
     """One unit of one env: where ``mask``, every frame of the stack is ``frame`` (a new episode's first)."""
     env, u = wp.tid()
     if mask[env]:
-        for c in range(channels):
-            first = sample(frame, env, u, c, stack)
-            for f in range(frames):
-                stack[env, f * channels + c, u] = first
+        refill(frame, env, u, channels, frames, stack)
 
 
 def image_dtype(cfg: CameraConfig):

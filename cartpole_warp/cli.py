@@ -89,8 +89,9 @@ def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:
     field's own flag (``--env.num-envs``), which tyro parses; the config classes name no program's flags."""
     out = []
     for arg in argv:
+        _, equals, value = arg.partition("=")
         target = aliases.get(flag_name(arg)) if arg.startswith("--") else None
-        out.append(target + arg[len(arg.partition("=")[0]):] if target else arg)
+        out.append(f"{target}{equals}{value}" if target else arg)
     return out
 
 
