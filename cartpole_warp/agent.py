@@ -59,6 +59,9 @@ class CnnConfig:
     """Stride of each convolution (one value: all)."""
     activation: Activation = "elu"
     """Activation after each convolution."""
+    precision: Literal["bfloat16", "float32"] = "bfloat16"
+    """Arithmetic of the encoder on a GPU (its weights, the MLP after it and the losses stay float32); the CPU
+    computes in float32."""
 
 
 @dataclass

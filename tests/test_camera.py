@@ -158,6 +158,7 @@ def test_the_actor_sees_frames_and_the_critic_the_state(make):
     assert cfg["actor"]["class_name"].endswith(":ImageModel") and cfg["critic"]["class_name"] == "MLPModel"
     assert cfg["actor"]["cnn_cfg"] == {"output_channels": [16, 32, 32], "kernel_size": [8, 4, 3],
                                        "stride": [4, 2, 1], "activation": "elu"}
+    assert cfg["actor"]["precision"] == "bfloat16"
 
 
 def train(log_dir, seed=3):

@@ -42,7 +42,8 @@ def test_every_task_has_ids_and_they_are_registered():
                    "cartpole_warp/CartThreePoleSwingup-v0": ("cart-three-pole-swingup", None),
                    "cartpole_warp/CartpoleBalanceRGB-v0": ("cartpole-balance-rgb", None),
                    "cartpole_warp/CartpoleBalanceDepth-v0": ("cartpole-balance-depth", None),
-                   "cartpole_warp/CartpoleSwingupRGB-v0": ("cartpole-swingup-rgb", None)}
+                   "cartpole_warp/CartpoleSwingupRGB-v0": ("cartpole-swingup-rgb", None),
+                   "cartpole_warp/CartDoublePoleRGB-v0": ("cart-double-pole-balance-rgb", None)}
     assert {task for task, _ in IDS.values()} == set(cartpole_warp.tasks.names())
     assert set(IDS) <= set(gym.registry)
 

@@ -23,7 +23,8 @@ from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
 def test_the_registry_finds_every_task_and_names_the_known_ones():
-    assert tasks.names() == ["cartpole-balance", "cart-double-pole-balance", "cart-three-pole-swingup",
+    assert tasks.names() == ["cartpole-balance", "cart-double-pole-balance", "cart-double-pole-balance-rgb",
+                             "cart-three-pole-swingup",
                              "cart-two-pole-swingup", "cartpole-balance-depth", "cartpole-balance-rgb",
                              "cartpole-balance-sparse", "cartpole-swingup", "cartpole-swingup-rgb",
                              "cartpole-swingup-sparse"]

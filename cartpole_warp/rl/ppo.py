@@ -17,10 +17,12 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 
 # isort: split
 from itertools import chain
+from types import SimpleNamespace
 
 import torch
 from rsl_rl.algorithms import PPO
 from rsl_rl.modules.distribution import GaussianDistribution
+from rsl_rl.utils.utils import reduce_gradients_in_buckets
 from torch import nn
 
 from ..streams import TorchGraph
@@ -78,6 +80,13 @@ class SyncFreePPO(PPO):
             if "step" in state:
                 state["step"] = state["step"].to(param.device, torch.float32)
         return iteration
+
+    def reduce_parameters(self) -> None:
+        """rsl-rl's gradient all-reduce, for gradients of any dense layout: it flattens each with ``view(-1)``, which
+        a channels-last convolution kernel's gradient (``rl.image_model``) refuses; it gets a flat alias instead."""
+        grads = [SimpleNamespace(grad=p.grad.as_strided((p.grad.numel(),), (1,)))
+                 for p in chain(self.actor.parameters(), self.critic.parameters()) if p.grad is not None]
+        reduce_gradients_in_buckets(grads, self.gpu_world_size, self.grad_reduce_bucket_mb)
 
     def release_graph(self):
         """Free the captured update (before the process group is destroyed: ``TorchGraph.release``)."""

@@ -426,7 +426,7 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -
     cfg["critic"]["class_name"] = "MLPModel"
     cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
     if images:
-        cfg["actor"] |= {"class_name": _path(ImageModel), "cnn_cfg": cnn}
+        cfg["actor"] |= {"class_name": _path(ImageModel), "precision": cnn.pop("precision"), "cnn_cfg": cnn}
         cfg["obs_groups"]["critic"] = ["critic"]
     if agent.logger == "wandb":
         cfg["logger"] = {"class_name": "WandbLogWriter", "project_name": agent.wandb_project}

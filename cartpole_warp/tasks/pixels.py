@@ -1,11 +1,11 @@
-"""The cart-pole tasks from pixels: the balance and the swing-up, seen by one camera per env (``CameraConfig``), with
-the same physics, rewards, ends, resets and solved rules as their state twins. The policy sees the last frames
-(``env.camera``), the critic the task's state (an asymmetric actor-critic: ``rl.image_model``)."""
+"""The cart-pole tasks from pixels: the balance, the swing-up and the double pole, seen by one camera per env
+(``CameraConfig``), with the same physics, rewards, ends, resets and solved rules as their state twins. The policy
+sees the last frames (``env.camera``), the critic the task's state (an asymmetric actor-critic: ``rl.image_model``)."""
 
 import dataclasses
 
 from ..config import merge
-from . import balance, register, swingup
+from . import balance, double_pole, register, swingup
 
 PIXEL_AGENT = {"agent": {"algorithm": {"symmetry": False}, "actor": {"hidden_dims": [64, 64]}}}
 """What a policy from pixels changes in its twin's training settings (the symmetry signs mirror states, not images)."""
@@ -13,17 +13,29 @@ BALANCE_CAMERA = {"eye_m": (5.0, 0.0, 0.5), "target_m": (0.0, 0.0, 0.5), "fov_ra
 """The rail's +-3 m (where the balance ends) and the upright pole, seen from the pole's side."""
 SWINGUP_CAMERA = {"eye_m": (4.0, 0.0, 0.0), "target_m": (0.0, 0.0, 0.0), "fov_rad": 0.95}
 """dm_control's +-1.8 m slider and the pole hanging or up, seen from the pole's side."""
+DOUBLE_POLE_CAMERA = {"eye_m": (6.0, 0.0, 1.0), "target_m": (0.0, 0.0, 1.0), "fov_rad": 1.0}
+"""The rail's +-3 m (where the double pole ends) and both poles up to their 2 m tip, seen from the poles' side."""
+BALANCE_AGENT = {"agent": {"num_steps_per_env": 16, "algorithm": {"num_learning_epochs": 2}}}
+"""A balance from pixels learns in fewer iterations from 16 steps per env and two passes over each rollout than
+from its twin's 8 steps and one pass."""
+DOUBLE_POLE_AGENT = {"agent": {"max_iterations": 600, "algorithm": {"num_learning_epochs": 2}}}
+"""The double pole from pixels: two passes over each rollout, and more iterations than its twin."""
 
 
-def from_pixels(task, name: str, image: str, camera: dict, gym_id: str, summary: str):
-    """``task`` seen by a camera (``image`` 'rgb' or 'depth'), registered as ``name``."""
-    defaults = merge(merge(task.defaults, PIXEL_AGENT), {"env": {"camera": {"image": image, **camera}}})
+def from_pixels(task, name: str, image: str, camera: dict, gym_id: str, summary: str, agent: dict | None = None):
+    """``task`` seen by a camera (``image`` 'rgb' or 'depth'), registered as ``name``; ``agent``: training settings of
+    its own on top of ``PIXEL_AGENT``."""
+    defaults = merge(merge(merge(task.defaults, PIXEL_AGENT), agent or {}),
+                     {"env": {"camera": {"image": image, **camera}}})
     return register(dataclasses.replace(task, name=name, defaults=defaults, summary=summary, gym_ids={gym_id: None}))
 
 
 from_pixels(balance.TASK, "cartpole-balance-rgb", "rgb", BALANCE_CAMERA, "cartpole_warp/CartpoleBalanceRGB-v0",
-            "the balance from 64x64 colour frames (3 stacked; the critic sees the state)")
+            "the balance from 64x64 colour frames (3 stacked; the critic sees the state)", BALANCE_AGENT)
 from_pixels(balance.TASK, "cartpole-balance-depth", "depth", BALANCE_CAMERA, "cartpole_warp/CartpoleBalanceDepth-v0",
-            "the balance from 64x64 depth frames (metres, 3 stacked; the critic sees the state)")
+            "the balance from 64x64 depth frames (metres, 3 stacked; the critic sees the state)", BALANCE_AGENT)
 from_pixels(swingup.TASK, "cartpole-swingup-rgb", "rgb", SWINGUP_CAMERA, "cartpole_warp/CartpoleSwingupRGB-v0",
             "the swing-up from 64x64 colour frames (3 stacked; the critic sees the state)")
+from_pixels(double_pole.TASK, "cart-double-pole-balance-rgb", "rgb", DOUBLE_POLE_CAMERA,
+            "cartpole_warp/CartDoublePoleRGB-v0",
+            "the double pole from 64x64 colour frames (3 stacked; the critic sees the state)", DOUBLE_POLE_AGENT)
