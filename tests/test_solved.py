@@ -117,3 +117,16 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
 @pytest.mark.parametrize("name", tasks.names())
 def test_every_tasks_rule_refuses_a_summary_without_episodes(name):
     assert not tasks.get(name).solved(EpisodeSummary(0, None, None, None, None))
+
+
+def test_the_learning_curve_shows_the_whole_run_not_the_progress_saved_with_the_best_checkpoint(tmp_path):
+    """The export after training loads model_best.pt's policy: the run's own history (every iteration) stays what
+    the learning curve is drawn from and summary.json counts."""
+    training = make_training(tmp_path, min_interval=1, max_interval=1)
+    training.cfg.agent.max_iterations = 3
+    set_policy_mean(training, BALANCING_GAINS, std=1.0)
+    training_episodes(training, FAILING)
+    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    summary = training.run()
+    assert summary.best["iteration"] == 0 and summary.iterations == 3
+    assert [h["iteration"] for h in training.runner.progress.history] == [0, 1, 2], "the curve's history"

@@ -314,15 +314,18 @@ class TaskRunner(OnPolicyRunner):
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
              map_location: str | None = None) -> dict:
-        """Load a checkpoint (RunError naming the file if it is unreadable or does not fit) to continue after its
-        iteration; return its progress."""
+        """Load a checkpoint (RunError naming the file if it is unreadable or does not fit); return its progress.
+        Where ``load_cfg`` loads the iteration (the default: resuming) training continues after it with the
+        checkpoint's progress; otherwise (e.g. ``{"actor": True}``: the best policy, to export) the run's own progress
+        stays."""
         loaded = read_checkpoint(path, map_location or self.device)
         with networks_must_fit(path):
             self.alg.load(loaded, load_cfg, strict)
+        infos = loaded.get("infos") or {}
         if load_cfg is None or load_cfg.get("iteration"):
             self.current_learning_iteration = loaded["iter"] + 1
-        infos = loaded.get("infos") or {}
-        self.progress = Progress(**{f.name: infos[f.name] for f in dataclasses.fields(Progress) if f.name in infos})
+            self.progress = Progress(**{f.name: infos[f.name] for f in dataclasses.fields(Progress)
+                                        if f.name in infos})
         return infos
 
     def policy(self) -> Policy:
