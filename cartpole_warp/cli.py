@@ -35,6 +35,8 @@ class ViserArgs:
 
     def problem(self) -> str | None:
         """What is wrong with these values, in one line (None: nothing)."""
+        if not 1 <= self.port <= 65535:
+            return f"--port must be a TCP port, 1-65535, got {self.port}"
         return None if self.viewer_envs >= 1 else f"--viewer-envs must be >= 1, got {self.viewer_envs}"
 
 

@@ -51,7 +51,8 @@ class PlayArgs(Generic[TaskT]):
     run: Path | None = None
     """Run folder (default: the newest run under --log-dir)."""
     checkpoint: Path | None = None
-    """Checkpoint file (default: the run's best by its evaluations, model_best.pt, else its latest)."""
+    """Checkpoint file (default: the run's best by its evaluations, model_best.pt, else its latest); it plays with its
+    own folder's config.yaml, so --run, if given too, must be that folder."""
     log_dir: str = "logs"
     """Root folder of all runs (train.py's --log-dir)."""
     experiment_name: str | None = None
@@ -117,6 +118,9 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
             checkpoint = Path(first.checkpoint)
             if not checkpoint.is_file():
                 raise RunError(f"checkpoint {checkpoint} not found")
+            require(not first.run or Path(first.run).resolve() == checkpoint.parent.resolve(),
+                    f"--checkpoint {checkpoint} is not in --run {first.run}: a checkpoint plays in its own run "
+                    "folder (its config.yaml, its play/): give one of them")
         else:
             experiment = first.experiment_name or task
             run = Path(first.run) if first.run else latest_run(first.log_dir, experiment, "--experiment-name")

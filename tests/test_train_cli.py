@@ -261,6 +261,24 @@ def test_play_names_what_it_cannot_find_and_its_own_flags(trained, run_main, fla
     assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr, result.stderr
 
 
+def test_play_refuses_a_checkpoint_outside_the_run_it_is_given(trained, tmp_path, run_main):
+    """--run A --checkpoint B (B of another run) would play B's task and overwrite B's play/: one error instead."""
+    _, run, _ = trained
+    other = shutil.copytree(run, tmp_path / "other")
+    result = run_main("play", "--headless", "--run", other, "--checkpoint", run / "model_1.pt")
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr == (f"error: --checkpoint {run / 'model_1.pt'} is not in --run {other}: a checkpoint plays "
+                             "in its own run folder (its config.yaml, its play/): give one of them\n")
+    assert not (run / "play").exists() and not (other / "play").exists()
+
+
+@pytest.mark.parametrize("script", ["train", "play"])
+def test_a_port_out_of_range_is_one_line_before_any_server(tmp_path, run_main, script):
+    result = run_main(script, "--viewer", "viser", "--port", "99999", "--log-dir", tmp_path,
+                      *(["--agent", "zero"] if script == "play" else []))
+    assert result.returncode == 2 and result.stderr == "error: --port must be a TCP port, 1-65535, got 99999\n"
+
+
 @pytest.mark.parametrize("content", [b"not a checkpoint", None])
 def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, content, run_main):
     _, run, _ = trained
