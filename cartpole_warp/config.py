@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import re
 import typing
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Generic, Literal, TypeVar
@@ -269,6 +270,7 @@ class EnvConfig(Generic[TaskT]):
         """Raise ConfigError naming the first invalid value and what is allowed; return self. Each field's type and
         range are checked where dicts become configs (``from_dict``); the checks here relate fields."""
         sim, limit_s = self.sim, self.task.episode_length_s
+        check_device_name(self.device)
         require(self.num_envs <= MAX_NUM_ENVS,
                 f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
                 f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
@@ -292,6 +294,13 @@ def require(ok: bool, message: str):
     """Raise ConfigError(message) unless ``ok``."""
     if not ok:
         raise ConfigError(message)
+
+
+def check_device_name(device: str):
+    """ConfigError naming the valid devices unless ``device`` is 'cpu', 'cuda' or 'cuda:N' (whether it exists here is
+    ``runtime.resolve_device``'s to say)."""
+    require(str(device) in ("cpu", "cuda") or re.fullmatch(r"cuda:\d+", str(device)) is not None,
+            f"unknown device {device!r}; use 'cpu', 'cuda' (the first GPU) or 'cuda:N'")
 
 
 Config = TypeVar("Config")

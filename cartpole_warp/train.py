@@ -40,7 +40,7 @@ from .presets import presets
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
-from .runtime import NO_CUDA, timed
+from .runtime import NO_CUDA, resolve_device, timed
 from .scene import StageError
 
 
@@ -136,10 +136,12 @@ def main(argv: list[str] | None = None) -> int:
         with timed(timing_s, "imports"):
             import torch
 
-            from .rl.training import Training
+            from .rl.training import Training, check_memory
 
-        if not ranks.distributed and cfg.env.device != "cpu" and not torch.cuda.is_available():  # before the build
-            raise ConfigError(NO_CUDA.format(cfg.env.device))
+        if not ranks.distributed:  # before the build
+            if cfg.env.device != "cpu" and not torch.cuda.is_available():
+                raise ConfigError(NO_CUDA.format(cfg.env.device))
+            check_memory(cfg, resolve_device(cfg.env.device))
         if ranks.writes:
             print(f"building {cfg.env.num_envs} envs on "
                   f"{f'{ranks.world_size} GPUs' if ranks.distributed else cfg.env.device}...", flush=True)

@@ -363,6 +363,7 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
     (["--viewer-interval-s", "-1"], "error: --viewer-interval-s must be finite and >= 0, got -1.0"),
     (["--viewer-interval-s", "nan"], "error: --viewer-interval-s must be finite and >= 0, got nan"),
+    (["--device", "gpu"], "error: unknown device 'gpu'; use 'cpu', 'cuda' (the first GPU) or 'cuda:N'"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
     result = run_main("train", "--log-dir", tmp_path, *args)
@@ -370,6 +371,20 @@ def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
     assert not (tmp_path / "rsl_rl").exists()
     if message.startswith("error:"):
         assert result.stderr.strip().count("\n") == 0, "one line"
+
+
+def test_state_envs_that_cannot_fit_are_refused_in_one_line_before_the_build(tmp_path, run_main, monkeypatch):
+    """As the camera path does: the estimate (the env's measured bytes, rsl-rl's storage derived from its buffers)
+    against the free memory, here a machine with 1 GB free."""
+    from cartpole_warp.rl import training
+
+    monkeypatch.setattr(training, "free_memory_bytes", lambda device: 10**9)
+    result = run_main("train", "--num-envs", "3500000", "--log-dir", tmp_path)
+    assert result.returncode == 2 and result.stdout == "", result.stdout
+    assert result.stderr == ("error: training 3,500,000 envs of cartpole-balance needs about 31.1 GB on cpu (8.9 kB "
+                             "per env: the scene and rsl-rl's storage of 8 steps per env); cpu has 1.0 GB free: use at "
+                             "most ~112,485 envs (--num-envs) or fewer --agent.num-steps-per-env\n")
+    assert not (tmp_path / "rsl_rl").exists()
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error on a machine without a GPU")

@@ -16,13 +16,55 @@ from pathlib import Path
 
 import torch
 
+from .. import camera
 from ..config import ConfigError
-from ..runtime import timed
+from ..runtime import free_memory_bytes, resolve_device, timed
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
 from .runner import TaskRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
+
+ENV_BYTES_PER_ENV = 8_400
+"""Host memory per env of a training process besides rsl-rl's storage (the env's buffers, its Newton scene, torch's
+copies of each step): the balance's peak resident memory in a 1-iteration ``train.py`` run on the CPU grew by 8,862
+bytes per env from 65,536 to 262,144 envs (2-core AMD EPYC, 2026-11-26), less its 490-byte storage estimate. Tasks of
+more bodies take more (a floor for them)."""
+
+
+def bytes_per_env(cfg: TrainConfig) -> dict[str, int]:
+    """Memory a training run takes per env, by where it lies: 'host', ``ENV_BYTES_PER_ENV`` (measured), and
+    'device': the camera's frames where the policy sees them (``camera.bytes_per_env``) and rsl-rl's rollout storage
+    over ``num_steps_per_env`` steps (per step the observations, the critic's own where the policy sees frames, the
+    actions with the Gaussian's mean and std, the reward, value, log-probability, return and advantage in float32,
+    the done flag in a byte), plus one mini-batch's copy of it (twice with the mirror augmentation)."""
+    env_class, camera_cfg, agent = cfg.task_spec.env_class, cfg.env.camera, cfg.agent
+    obs_bytes, frames_bytes = 4 * env_class.num_obs, 0
+    if camera_cfg.image != "none":
+        pixel_bytes = 1 if camera_cfg.image == "rgb" else 4
+        obs_bytes += (camera_cfg.channels * camera_cfg.frame_stack * camera_cfg.height_px * camera_cfg.width_px
+                      * pixel_bytes)
+        frames_bytes = camera.bytes_per_env(camera_cfg)
+    storage = agent.num_steps_per_env * (obs_bytes + 4 * 3 * env_class.num_actions + 4 * 5 + 1)
+    mirrored = agent.algorithm.symmetry and env_class.obs_mirror is not None
+    mini_batch = storage // agent.algorithm.num_mini_batches * (2 if mirrored else 1)
+    return {"host": ENV_BYTES_PER_ENV, "device": frames_bytes + storage + mini_batch}
+
+
+def check_memory(cfg: TrainConfig, device: str):
+    """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs would not fit
+    in the free memory of the host or of ``device``, before anything is allocated."""
+    per_env = bytes_per_env(cfg)
+    needs = {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
+    for where, need_per_env in needs.items():
+        need, free = cfg.env.num_envs * need_per_env, free_memory_bytes(where)
+        if need > free:
+            steps = cfg.agent.num_steps_per_env
+            raise ConfigError(
+                f"training {cfg.env.num_envs:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
+                f"({need_per_env / 1e3:,.1f} kB per env: the scene and rsl-rl's storage of {steps} steps per env); "
+                f"{where} has {free / 1e9:,.1f} GB free: use at most ~{free // need_per_env:,} envs "
+                "(--num-envs) or fewer --agent.num-steps-per-env")
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -44,6 +86,7 @@ class Training:
         self.run_dir, self.ranks = Path(run_dir), ranks
         start = time.perf_counter()
         env_cfg = ranks.env_config(cfg.env, torch.cuda.device_count())
+        check_memory(cfg, resolve_device(env_cfg.device))
         torch.manual_seed(env_cfg.seed)
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
