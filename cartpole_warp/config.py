@@ -17,6 +17,7 @@ import numbers
 import re
 import typing
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import pydantic
@@ -271,6 +272,7 @@ class EnvConfig(Generic[TaskT]):
         range are checked where dicts become configs (``from_dict``); the checks here relate fields."""
         sim, limit_s = self.sim, self.task.episode_length_s
         check_device_name(self.device)
+        require(sim.stage_path is None or Path(sim.stage_path).is_file(), f"USD stage not found: {sim.stage_path}")
         require(self.num_envs <= MAX_NUM_ENVS,
                 f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
                 f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")

@@ -160,8 +160,9 @@ def grid_envs(args: PlayArgs, cfg: TrainConfig, argv: list[str]):
     axes = args.grid(cfg.task_spec.env_class.joint_roles)
     names = [axis.name for axis in axes]
     require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
-    require(all(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)) for axis in axes),
-            "every --grid-*-factors list needs finite factors >= 0")
+    for axis, flag in zip(axes, (f"--grid-{letter}-factors" for letter in "xyz")):
+        require(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)),
+                f"{flag} needs finite factors >= 0, got {' '.join(f'{f:g}' for f in axis.factors) or 'none'}")
     cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
     delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
     require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")

@@ -173,7 +173,8 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     (["--grid-x", "actuator_scale"], "each grid axis needs its own parameter, got actuator_scale, actuator_scale"),
     (["--num-envs", "16"], "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs"),
     (["--env.num-envs", "16"], "drop --num-envs"),
-    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "inf"], "needs finite factors >= 0"),
+    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "inf"],
+     "error: --grid-x-factors needs finite factors >= 0, got 0 inf"),
     (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "1e12"],
      "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
 ])
