@@ -14,6 +14,7 @@ import abc
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
+import numpy as np
 import warp as wp
 
 from . import camera, randomization
@@ -25,6 +26,7 @@ from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bou
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
 
 if TYPE_CHECKING:
+    import gymnasium
     import torch  # imported where used: parsing a command line needs no torch
 
 class BatchedEnv(abc.ABC):
@@ -384,6 +386,45 @@ class BatchedEnv(abc.ABC):
     def get_state_observations(self) -> "torch.Tensor":
         """The task's state observations (N, num_obs), a fresh tensor (the critic's where the policy sees images)."""
         return self.state_obs_buf.clone()
+
+    @property
+    def single_observation_space(self) -> "gymnasium.spaces.Box":
+        """One env's observations as a gymnasium space: ``num_obs`` unbounded float32 (the task's docstring names
+        them), or with a camera its frames (``obs_shape``): uint8 in [0, 255] (rgb) or float32 metres (depth)."""
+        import gymnasium
+
+        if self.cfg.camera.image == "rgb":
+            return gymnasium.spaces.Box(0, 255, self.obs_shape, np.uint8)
+        low = 0.0 if self.cfg.camera.image == "depth" else -np.inf
+        return gymnasium.spaces.Box(low, np.inf, self.obs_shape, np.float32)
+
+    @property
+    def single_action_space(self) -> "gymnasium.spaces.Box":
+        """One env's actions as a gymnasium space: ``num_actions`` values in [-1, 1] (the env clips to it)."""
+        import gymnasium
+
+        return gymnasium.spaces.Box(-1.0, 1.0, (self.num_actions,), np.float32)
+
+    @property
+    def observation_space(self) -> "gymnasium.spaces.Box":
+        """The batch's observations, (num_envs, ...) (gymnasium's vector-env convention, as Isaac Lab's)."""
+        from gymnasium.vector.utils import batch_space
+
+        return batch_space(self.single_observation_space, self.num_envs)
+
+    @property
+    def action_space(self) -> "gymnasium.spaces.Box":
+        """The batch's actions, (num_envs, num_actions)."""
+        from gymnasium.vector.utils import batch_space
+
+        return batch_space(self.single_action_space, self.num_envs)
+
+    def __repr__(self) -> str:
+        limit = (f"time limit {self.max_episode_length} steps ({self.cfg.task.episode_length_s:g} s)"
+                 if self.cfg.task.episode_length_s is not None else "no time limit")
+        return (f"<{type(self).__name__}: {self.num_envs} envs on {self.device}, observations "
+                f"{self.single_observation_space}, actions {self.single_action_space}, {limit}, "
+                f"env step {self.env_dt:g} s>")
 
     @property
     def obs_shape(self) -> tuple[int, ...]:

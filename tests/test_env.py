@@ -53,6 +53,19 @@ def episodes_ended(trajectory) -> int:
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_the_raw_env_has_gymnasium_spaces_of_its_sizes_and_a_readable_repr(make, task):
+    env = make(num_envs=3, task_name=task)
+    obs, _ = env.reset()
+    assert env.single_observation_space.shape == env.obs_shape == tuple(obs.shape[1:])
+    assert env.observation_space.shape == tuple(obs.shape) and env.observation_space.contains(obs.cpu().numpy())
+    assert env.single_action_space.shape == (env.num_actions,) and env.action_space.shape == (3, env.num_actions)
+    assert env.action_space.contains(env.action_space.sample())
+    text = repr(env)
+    assert text.startswith(f"<{type(env).__name__}: 3 envs on {env.device}, observations Box(")
+    assert "actions Box(-1.0, 1.0, (1,), float32)" in text and text.endswith(">")
+
+
+@pytest.mark.parametrize("task", TASKS)
 def test_every_task_names_its_end_reasons(task, make):
     env = make(2, task_name=task)
     assert env.end_reasons[:4] == COMMON_ENDS == ("running", "time_limit", "nonfinite_state", "diverged_state")

@@ -42,6 +42,25 @@ assert (wp.config.log_level, wp.config.enable_backward) == (level, backward), "a
     assert result.stdout == "" and result.stderr == "", result.stdout + result.stderr
 
 
+def test_rendering_and_gymnasiums_env_checker_print_nothing():
+    """A gymnasium env's first ``render()`` (gymnasium's ``check_env``, ``RecordVideo``) loads Newton's kinematics
+    module: silently, as the build does, in a process that has loaded nothing else."""
+    code = """
+import warnings
+import gymnasium as gym
+import cartpole_warp
+from gymnasium.utils.env_checker import check_env
+warnings.simplefilter("ignore")  # check_env's warnings on unbounded observation spaces
+env = gym.make("cartpole_warp/Cartpole-v0", render_mode="rgb_array")
+check_env(env.unwrapped)
+env.reset(seed=0)
+assert env.render().ndim == 3
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "" and result.stderr == "", result.stdout + result.stderr
+
+
 def test_verbose_lets_warps_lines_through():
     result = python("import cartpole_warp; cartpole_warp.make_env(num_envs=4, device='cpu', verbose=True)")
     assert result.returncode == 0, result.stderr

@@ -20,6 +20,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from ..env import BatchedEnv
 from ..files import atomic_write
+from ..runtime import warp_output
 
 BACKGROUND = (250, 250, 250)
 INK = (40, 40, 40)
@@ -245,7 +246,8 @@ class EnvFrames(Sequence):
         self.env = env
         self._geometries: dict[tuple[int, int], Geometry] = {}
         first = self._geometry(0)
-        self.view = SideView.around(first, [first.body_transforms(env.scene.state_0)], width_px, reach=True)
+        with warp_output(env.cfg.verbose):  # the library prints nothing: Newton's kinematics module loads here
+            self.view = SideView.around(first, [first.body_transforms(env.scene.state_0)], width_px, reach=True)
 
     def _shard(self, index: int):
         return next(s for s in self.env.shards if s.start <= index < s.stop)
