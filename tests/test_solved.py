@@ -3,6 +3,7 @@ rule only in its (noisy) training episodes is not solved, one whose mean action 
 training episodes show, the best evaluation is kept as model_best.pt and play.py loads it by default."""
 
 import dataclasses
+import signal
 
 import pytest
 import torch
@@ -130,3 +131,25 @@ def test_the_learning_curve_shows_the_whole_run_not_the_progress_saved_with_the_
     summary = training.run()
     assert summary.best["iteration"] == 0 and summary.iterations == 3
     assert [h["iteration"] for h in training.runner.progress.history] == [0, 1, 2], "the curve's history"
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_a_signal_once_training_has_ended_waits_for_the_summary(tmp_path, signals, capsys):
+    """SIGINT delivered while the policy is exported (right after the last iteration line, e.g. one reading SOLVED),
+    once or twice: the exports, the curve and summary.json are still written, and the run's status is what training
+    reached."""
+    training = make_training(tmp_path)
+    training.cfg.agent.max_iterations = 1
+    export = training.runner.export
+
+    def export_under_signals(out_dir):
+        for _ in range(signals):
+            signal.raise_signal(signal.SIGINT)
+        return export(out_dir)
+
+    training.runner.export = export_under_signals
+    summary = training.run()
+    assert summary.status == "completed" and (training.run_dir / "summary.json").is_file()
+    assert (training.run_dir / "learning_curve.png").is_file() and len(summary.exports) == 2
+    assert "writing the run's exports, curve and summary first" in capsys.readouterr().out
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler, "the handler is restored"

@@ -112,6 +112,8 @@ class Training:
                 save_config(self.run_dir, cfg)
         self.setup_time_s = time.perf_counter() - start
         self._interrupts = 0
+        self._finishing = False
+        """Training has ended and the run's files are being written (signals then wait)."""
 
     @property
     def solved_definition(self) -> str:
@@ -125,6 +127,10 @@ class Training:
         return self.env.max_episode_length
 
     def _on_signal(self, signum, frame):
+        if self._finishing:  # the run's files are being written: they come first, and quickly
+            if self.ranks.writes:
+                print("\nwriting the run's exports, curve and summary first", flush=True)
+            return
         self._interrupts += 1
         if self._interrupts > 1:
             raise KeyboardInterrupt
@@ -135,18 +141,23 @@ class Training:
     def run(self) -> RunSummary | None:
         """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or SIGTERM, which torchrun sends its processes,
         or, with stop_when_solved, once solved); then export the policy play.py plays (``model_best.pt``'s where an
-        evaluation ran, else the last), draw the learning curve and write
-        ``summary.json``, and return it (None in the processes that do not write)."""
+        evaluation ran, else the last), draw the learning curve and write ``summary.json``, and return it (None in
+        the processes that do not write). A signal once training has ended waits until summary.json is written."""
         previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-        trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
         try:
-            self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
+            trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
+            try:
+                self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
+            finally:
+                self._finishing = True
+                self.runner.release_graphs()
+            return self._finish(trained_before_s) if self.ranks.writes else None
         finally:
-            self.runner.release_graphs()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-        if not self.ranks.writes:
-            return None
+
+    def _finish(self, trained_before_s: float) -> RunSummary:
+        """The end of a run: exports, the learning curve, ``summary.json``."""
         progress = self.runner.progress
         self.timing_s["training"] = progress.train_time_s - trained_before_s
         with timed(self.timing_s, "export"):
