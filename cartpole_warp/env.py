@@ -173,6 +173,10 @@ class BatchedEnv(abc.ABC):
         """(N, num_obs) the task's state observations (zero-copy): the policy's observations unless it sees images,
         else the privileged observations of an asymmetric critic."""
         self.obs_buf = wp.to_torch(self._images) if self.cameras else self.state_obs_buf
+        self.final_state_buf = wp.to_torch(self._results.final_state)
+        """(N, 2 x joint roles) where the last step ended an episode, the joint state it ended at (``set_state``'s
+        layout; the last sound one if the state turned non-finite or diverged), zero-copy: the robot is already
+        reset there."""
         self.reward_buf = wp.to_torch(self._results.reward)
         self.terminated_buf = wp.to_torch(self._results.terminated)
         self.truncated_buf = wp.to_torch(self._results.truncated)

@@ -253,9 +253,7 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     task = cfg.task_spec
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
-    camera = ((lambda: env.obs_buf[0].to("cpu", copy=True).numpy(), env.cfg.camera.image) if env.cameras else None)
-    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length, viser=args.record_viser,
-                        camera=camera)
+    recorder = Recorder.of_env(env, output, video_length=args.video_length, viser=args.record_viser)
     stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
     pictures = recorder.close()
     at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length

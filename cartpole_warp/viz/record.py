@@ -1,7 +1,7 @@
 """Recording env 0 of a rollout: a GIF side view, an MP4 of the same pictures, a time-sampled USD stage (Newton's
 ``ViewerUSD``) and, where asked (the viser extra), a ``.viser`` recording for the browser.
 
-    recorder = Recorder(env.scene, env.env_dt, out_dir)
+    recorder = Recorder.of_env(env, out_dir)
     rollout(env, policy, steps, on_step=recorder)
     recorder.close()            # cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda (usdview plays it)
 """
@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from newton.viewer import ViewerUSD
 
+from ..env import BatchedEnv
 from ..files import atomic_write
 from ..scene import Scene
 from . import prepare_viewers
@@ -48,12 +49,16 @@ class Recorder:
     """Called once per env step (``recorder(step)``), it records the bodies of env 0 of ``scene``.
     ``video_length``: env steps in the MP4 (None: all); ``viser``: also a ``.viser`` recording; ``camera``: what the
     policy sees (env 0's camera observation, a numpy array, and the kind of image, 'rgb' or 'depth'), recorded too and
-    drawn beside the side view in ``policy_view.gif``."""
+    drawn beside the side view in ``policy_view.gif``; ``final_state``: env 0's joint state where its episode ended
+    in the step just taken, else None (``BatchedEnv.final_state_buf``): that step's frame shows the episode's end, not
+    the next episode's start that the scene already holds."""
 
     def __init__(self, scene: Scene, env_dt: float, out_dir: Path, video_length: int | None = None,
-                 viser: bool = False, camera: tuple[Callable[[], np.ndarray], str] | None = None):
+                 viser: bool = False, camera: tuple[Callable[[], np.ndarray], str] | None = None,
+                 final_state: Callable[[], np.ndarray | None] | None = None):
         self.scene, self.env_dt, self.out_dir, self.video_length = scene, env_dt, Path(out_dir), video_length
-        self.camera = camera
+        self.camera, self.final_state = camera, final_state
+        self._ended_state = None
         self.camera_frames: list[np.ndarray] = []
         self.geometry = Geometry(scene.model)
         self.frames: list[np.ndarray] = []
@@ -71,8 +76,22 @@ class Recorder:
 
             self.viser = Recording(scene, self.out_dir / "cartpole.viser", env_dt)
 
+    @classmethod
+    def of_env(cls, env: BatchedEnv, out_dir: Path, **kwargs) -> Recorder:
+        """A recorder of env 0 of ``env``: its side view, its end-of-episode states and, where the policy sees
+        frames, its camera's; ``kwargs``: ``video_length``, ``viser``."""
+        camera = ((lambda: env.obs_buf[0].to("cpu", copy=True).numpy(), env.cfg.camera.image) if env.cameras
+                  else None)
+
+        def final_state() -> np.ndarray | None:
+            ended = bool(env.terminated_buf[0] | env.truncated_buf[0])
+            return env.final_state_buf[0].cpu().numpy() if ended else None
+
+        return cls(env.scene, env.env_dt, out_dir, camera=camera, final_state=final_state, **kwargs)
+
     def __call__(self, step: int):
-        state = self.scene.state_0
+        ended = self.final_state() if self.final_state is not None and step > 0 else None
+        state = self.scene.state_0 if ended is None else self._state_at(ended)
         self.frames.append(self.geometry.body_transforms(state))
         self.usd.begin_frame(step / self.fps)
         self.usd.log_state(state)
@@ -81,6 +100,17 @@ class Recorder:
             self.camera_frames.append(self.camera[0]())
         if self.viser is not None:
             self.viser(step)
+
+    def _state_at(self, role_state: np.ndarray):
+        """A Newton state of the scene with env 0's joint roles at ``role_state`` (per role: position, velocity)."""
+        if self._ended_state is None:
+            self._ended_state = self.scene.model.state()
+        joint_q, joint_qd = self.scene.state_0.joint_q.numpy().copy(), self.scene.state_0.joint_qd.numpy().copy()
+        for role, dof in enumerate(self.scene.role_dofs):
+            joint_q[dof], joint_qd[dof] = role_state[2 * role], role_state[2 * role + 1]
+        self._ended_state.joint_q.assign(joint_q)
+        self._ended_state.joint_qd.assign(joint_qd)
+        return self._ended_state
 
     def close(self) -> list[Path]:
         """Write the GIF, the MP4 (when the video extra is installed), the USD stage and the viser recording (where
