@@ -31,3 +31,18 @@ def test_the_frame_of_an_episodes_last_step_shows_its_end_not_the_next_start(mak
     restarted = geometry.body_transforms(ending.scene.state_0)
     assert not np.allclose(restarted, expected[-1], atol=1e-3), "the env holds the next episode's start"
 
+
+
+def test_the_policy_view_says_what_it_shows():
+    """policy_view.gif's panel: the policy's input, which frame is oldest, how depth maps to grey."""
+    from cartpole_warp.viz.frames import camera_pictures
+
+    depth = np.zeros((2, 3, 8, 8), dtype=np.float32)
+    depth[:, :, 4, 4] = [[1.0, 2.0, 4.0]]
+    pictures, caption, frames = camera_pictures(depth, "depth")
+    assert frames == 3 and pictures[0].shape == (8, 24, 3)
+    assert caption == ["the policy's input: its last 3 depth frames (8x8), oldest left, one env step apart",
+                       "depth in grey: near white, 4.0 m dark grey, black: no surface"]
+    assert pictures[0][4, 4, 0] > pictures[0][4, 20, 0] > pictures[0][0, 0, 0] == 0, "near brighter, nothing black"
+    assert camera_pictures(np.zeros((1, 9, 8, 8), np.uint8), "rgb").caption[0].startswith(
+        "the policy's input: its last 3 colour frames (8x8), oldest left")
