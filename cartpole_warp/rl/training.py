@@ -207,4 +207,5 @@ class Training:
         start-up)."""
         from .curve import plot_learning_curve
 
-        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task.solved)
+        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task,
+                                   f"{self.task.name}: run {self.run_dir.name}")
