@@ -202,7 +202,7 @@ def play(argv: list[str]) -> int:
             return evaluate_robustness(args, cfg, env, policy, checkpoint)
         if args.headless:
             return play_headless(args, cfg, env, policy, checkpoint)
-        return view(args, env, policy)
+        return view(args, env, policy, cfg.task_spec.play_metric)
 
 
 def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) -> Policy:
@@ -226,7 +226,7 @@ def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) 
     return runner.policy()
 
 
-def view(args: PlayArgs, env, policy: Policy) -> int:
+def view(args: PlayArgs, env, policy: Policy, play_metric: str) -> int:
     """The policy in Newton's window or, with --viewer viser, in a browser, until the viewer closes."""
     if args.viewer == "viser":
         from .viz.web import view_in_browser
@@ -234,7 +234,7 @@ def view(args: PlayArgs, env, policy: Policy) -> int:
         viser = args.viser
         steps = view_in_browser(env, policy, viser.host, viser.port, viser.viewer_envs, max_steps=args.steps,
                                 on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True),
-                                title=args.task)
+                                title=args.task, play_metric=play_metric)
     else:
         from .viz.viewer import view_interactively
 

@@ -177,7 +177,7 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
 
         view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
                             args.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
-                            title=training.cfg.task)
+                            title=training.cfg.task, play_metric=training.task.play_metric)
         training.runner.on_iteration = view
         print(f"watch it at {view.url}", flush=True)
 

@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from ..files import atomic_write
+from ..statistics import METRIC_LABELS
 from ..tasks import Task
-
-LABELS = {"mean_reward_per_step": "mean reward per step",
-          "full_reward_per_step": "mean reward per step\n(full-length episodes)",
-          "time_limit_fraction": "episodes reaching\nthe time limit"}
-"""Axis labels of the curve's panels, by ``EpisodeSummary`` mean."""
 
 
 def curve_panels(task: Task) -> list[str]:
@@ -47,7 +44,8 @@ def plot_learning_curve(path: Path, history: list[dict], task: Task, title: str)
         if thresholds.get(key) is not None:
             axes.axhline(thresholds[key], color="tab:red", linestyle="--", label=f"solved: >= {thresholds[key]:g}")
         axes.grid(alpha=0.3)
-        axes.set_ylabel(LABELS.get(key, key) + ("\n(play metric)" if key == task.play_metric else ""))
+        label = METRIC_LABELS[key] + (" (play metric)" if key == task.play_metric else "")
+        axes.set_ylabel(textwrap.fill(label, 24))
         if axes.get_legend_handles_labels()[0]:
             axes.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
     axes_list[-1].set_xlabel("iteration")
