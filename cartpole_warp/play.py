@@ -19,6 +19,8 @@ import functools
 import json
 import math
 import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Generic, Literal
@@ -254,7 +256,8 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
     recorder = Recorder.of_env(env, output, video_length=args.video_length, viser=args.record_viser)
-    stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
+    print(f"playing {env.num_envs} envs for {steps} env steps ...", flush=True)
+    stats = rollout(env, policy, steps, on_step=with_progress(recorder, steps), seed=cfg.env.seed)
     pictures = recorder.close()
     at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length
     limit = f"the {cfg.env.task.episode_length_s:g} s time limit" if at_limit else f"the {steps}-step cap"
@@ -276,6 +279,28 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     if not video_available():
         print(f"no MP4: {VIDEO_EXTRA} adds it")
     return 0
+
+
+PROGRESS_EVERY_S = 10.0
+"""A rollout that runs longer prints how far it is this often (a camera task on the CPU plays for a minute)."""
+
+
+def with_progress(on_step: Callable[[int], None], steps: int,
+                  every_s: float = PROGRESS_EVERY_S) -> Callable[[int], None]:
+    """``on_step`` that also prints, every ``every_s`` seconds, the steps done and an estimate of the time left."""
+    start = time.perf_counter()
+    next_s = start + every_s
+
+    def step(k: int):
+        nonlocal next_s
+        on_step(k)
+        now = time.perf_counter()
+        if 0 < k < steps and now >= next_s:
+            print(f"  {k}/{steps} env steps in {now - start:.0f} s, about {(now - start) / k * (steps - k):.0f} s "
+                  "left", flush=True)
+            next_s = now + every_s
+
+    return step
 
 
 def output_dir(args: PlayArgs, checkpoint: Path | None) -> Path:

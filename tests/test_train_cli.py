@@ -516,3 +516,16 @@ def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
     run = only_run(tmp_path)
     assert json.loads((run / "summary.json").read_text())["solved"]
     assert yaml.safe_load((run / "config.yaml").read_text())["env"]["task"]["cart_joint"] == "slider_to_cart"
+
+
+def test_a_long_rollout_says_how_far_it_is(capsys):
+    """play.py's rollout prints its progress every PROGRESS_EVERY_S seconds (here every step: 0 s)."""
+    from cartpole_warp.play import with_progress
+
+    seen = []
+    step = with_progress(seen.append, 3, every_s=0.0)
+    for k in range(4):
+        step(k)
+    lines = capsys.readouterr().out.splitlines()
+    assert seen == [0, 1, 2, 3] and len(lines) == 2, lines
+    assert re.fullmatch(r"  1/3 env steps in \d+ s, about \d+ s left", lines[0]), lines
