@@ -63,6 +63,25 @@ class TrainArgs(Generic[TaskT]):
     """--viewer viser: seconds between the page's updates. Each update makes the browser redraw: a browser without a
     GPU, on the training's own cores, then slows training the more, the shorter this."""
     viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
+    video: bool = False
+    """Write a clip of the policy every --video-interval iterations (and after the first) into <run>/videos/
+    (MP4 with the video extra, else GIF), played on an env of its own; the logger shows where each one is."""
+    video_length: int = 200
+    """--video: env steps per clip."""
+    video_interval: int = 50
+    """--video: iterations between clips."""
+
+
+class IterationHooks(list):
+    """Several ``runner.on_iteration`` callbacks (the browser view, the clips), called in order, closed together."""
+
+    def __call__(self, it: int, summary) -> None:
+        for hook in self:
+            hook(it, summary)
+
+    def close(self):
+        for hook in self:
+            hook.close()
 
 
 ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-name": "--agent.run-name",
@@ -114,6 +133,8 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     require(args.viser.problem() is None, args.viser.problem())
     require(math.isfinite(args.viewer_interval_s) and args.viewer_interval_s >= 0,
             f"--viewer-interval-s must be finite and >= 0, got {args.viewer_interval_s}")
+    require(args.video_length >= 1, f"--video-length must be >= 1, got {args.video_length}")
+    require(args.video_interval >= 1, f"--video-interval must be >= 1, got {args.video_interval}")
     cfg = checked(args.cfg).validate()
     return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint, args
 
@@ -172,14 +193,23 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
     print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
     print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
           flush=True)
+    hooks = IterationHooks()
     if args.viewer == "viser":
         from .viz.web import TrainingView
 
         view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
                             args.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
                             title=training.cfg.task, play_metric=training.task.play_metric)
-        training.runner.on_iteration = view
+        hooks.append(view)
         print(f"watch it at {view.url}", flush=True)
+    if args.video:
+        from .rl.video import VIDEO_DIR, TrainingVideo
+
+        hooks.append(TrainingVideo(training, args.video_length, args.video_interval))
+        print(f"clips of {args.video_length} env steps every {args.video_interval} iterations: "
+              f"{run_dir / VIDEO_DIR}", flush=True)
+    if hooks:
+        training.runner.on_iteration = hooks
 
 
 def report(summary, run_dir: Path, checkpoint: Path | None):
