@@ -64,8 +64,8 @@ class TrainArgs(Generic[TaskT]):
     GPU, on the training's own cores, then slows training the more, the shorter this."""
     viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
     video: bool = False
-    """Write a clip of the policy every --video-interval iterations (and after the first) into <run>/videos/
-    (MP4 with the video extra, else GIF), played on an env of its own; the logger shows where each one is."""
+    """A clip of the policy in <run>/videos/ every --video-interval iterations. The first iteration has one;
+    MP4 with the video extra, else GIF, played on an env of its own; the logger shows where each one is."""
     video_length: int = 200
     """--video: env steps per clip."""
     video_interval: int = 50
