@@ -30,7 +30,7 @@ import tyro
 from . import tasks
 from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
 from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
-from .files import write_text
+from .files import unwritable, write_text
 from .rl.config import TrainConfig, checked, train_config
 from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_run, load_config, play_checkpoint
 from .scene import StageError
@@ -186,9 +186,14 @@ def play(argv: list[str]) -> int:
     """play.py's work; ViewerUnavailable when the viewer is asked for and cannot open."""
     with clean_errors(ConfigError, RunError, StageError):
         args, cfg, checkpoint = resolve(argv)
+        if args.headless:
+            output = output_dir(args, checkpoint)
+            problem = unwritable(output)
+            require(problem is None, f"the output folder {output} cannot be written: {problem}")
         if not args.headless and args.viewer == "viser":
             from .viz.web import check_viser
 
+            require(args.viser.host_problem() is None, args.viser.host_problem())
             check_viser()
         elif not args.headless:
             from .viz.viewer import check_viewer

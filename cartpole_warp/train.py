@@ -36,6 +36,7 @@ from .cli import (
     with_default_value,
 )
 from .config import ConfigError, TaskT, require
+from .files import unwritable
 from .presets import presets
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
@@ -136,7 +137,10 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     require(args.video_length >= 1, f"--video-length must be >= 1, got {args.video_length}")
     require(args.video_interval >= 1, f"--video-interval must be >= 1, got {args.video_interval}")
     cfg = checked(args.cfg).validate()
-    return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint, args
+    run_dir = run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name)
+    problem = unwritable(run_dir)
+    require(problem is None, f"the run folder {run_dir} cannot be written: {problem}")
+    return cfg, run_dir, checkpoint, args
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -149,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
             cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
         if args.viewer == "viser":
             from .viz.web import ViewerUnavailable, check_viser
+
+            require(args.viser.host_problem() is None, args.viser.host_problem())
 
             try:
                 check_viser()

@@ -275,10 +275,16 @@ def test_play_refuses_a_checkpoint_outside_the_run_it_is_given(trained, tmp_path
 
 
 @pytest.mark.parametrize("script", ["train", "play"])
-def test_a_port_out_of_range_is_one_line_before_any_server(tmp_path, run_main, script):
-    result = run_main(script, "--viewer", "viser", "--port", "99999", "--log-dir", tmp_path,
+@pytest.mark.parametrize("flags, message", [
+    (["--port", "99999"], "error: --port must be a TCP port, 1-65535, got 99999\n"),
+    (["--host", "192.0.2.1"],
+     "error: --host 192.0.2.1: no page can be served there (Cannot assign requested address)\n"),
+])
+def test_a_page_that_cannot_be_served_is_one_line_before_any_server(tmp_path, run_main, script, flags, message):
+    """viser's server thread raised and the program hung; 192.0.2.1 is a documentation address no host has."""
+    result = run_main(script, "--viewer", "viser", *flags, "--log-dir", tmp_path,
                       *(["--agent", "zero"] if script == "play" else []))
-    assert result.returncode == 2 and result.stderr == "error: --port must be a TCP port, 1-65535, got 99999\n"
+    assert result.returncode == 2 and result.stdout == "" and result.stderr == message
 
 
 @pytest.mark.parametrize("content", [b"not a checkpoint", None])
@@ -300,6 +306,12 @@ def test_play_without_a_display_suggests_headless(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     result = run_script("play.py", "--agent", "zero", "--log-dir", tmp_path, "--num-envs", "2", env=env)
     assert result.returncode == 1 and "--headless" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_play_refuses_an_output_folder_it_cannot_write_before_it_builds(run_main):
+    result = run_main("play", "--headless", "--agent", "zero", "--output", "/dev/null/play")
+    assert result.returncode == 2 and result.stdout == "" and result.stderr == (
+        "error: the output folder /dev/null/play cannot be written: /dev/null is not a folder\n")
 
 
 def test_play_zero_agent_needs_no_checkpoint(tmp_path, run_main):
@@ -366,6 +378,7 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--viewer-interval-s", "-1"], "error: --viewer-interval-s must be finite and >= 0, got -1.0"),
     (["--viewer-interval-s", "nan"], "error: --viewer-interval-s must be finite and >= 0, got nan"),
     (["--device", "gpu"], "error: unknown device 'gpu'; use 'cpu', 'cuda' (the first GPU) or 'cuda:N'"),
+    (["--log-dir", "/dev/null/logs"], "error: the run folder /dev/null/logs/rsl_rl/cartpole-balance/"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
     result = run_main("train", "--log-dir", tmp_path, *args)
