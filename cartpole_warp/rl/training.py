@@ -60,10 +60,11 @@ def check_memory(cfg: TrainConfig, device: str):
         need, free = cfg.env.num_envs * need_per_env, free_memory_bytes(where)
         if need > free:
             steps = cfg.agent.num_steps_per_env
+            frames = ", the camera's frames" if cfg.env.camera.image != "none" else ""
             raise ConfigError(
                 f"training {cfg.env.num_envs:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
-                f"({need_per_env / 1e3:,.1f} kB per env: the scene and rsl-rl's storage of {steps} steps per env); "
-                f"{where} has {free / 1e9:,.1f} GB free: use at most ~{free // need_per_env:,} envs "
+                f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of {steps} steps "
+                f"per env); {where} has {free / 1e9:,.1f} GB free: use at most ~{free // need_per_env:,} envs "
                 "(--num-envs) or fewer --agent.num-steps-per-env")
 
 
