@@ -347,12 +347,13 @@ def serve_recording(path: Path, port: int) -> None:
 def main(argv: list[str] | None = None) -> int:
     """``python -m cartpole_warp.viz.web RECORDING.viser [PORT]``: play a recording in the browser."""
     args = sys.argv[1:] if argv is None else argv
-    if not args or not Path(args[0]).is_file():
-        print("usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]  (e.g. logs/.../play/cartpole.viser)",
-              file=sys.stderr)
+    port = args[1] if len(args) > 1 else "8081"
+    if not args or not Path(args[0]).is_file() or len(args) > 2 or not port.isdigit() or not 1 <= int(port) <= 65535:
+        print("usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]  (an existing recording, e.g. "
+              "logs/.../play/cartpole.viser; a PORT of 1-65535)", file=sys.stderr)
         return 2
     try:
-        serve_recording(Path(args[0]), int(args[1]) if len(args) > 1 else 8081)
+        serve_recording(Path(args[0]), int(port))
     except ViewerUnavailable as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
