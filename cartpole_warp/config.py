@@ -66,7 +66,9 @@ Fraction = Annotated[float, pydantic.Field(ge=0, le=1, strict=True), Number]
 Flag = Annotated[bool, pydantic.Strict()]
 """True or False (not 1, 0 or 'yes')."""
 Name = Annotated[str, pydantic.Field(min_length=1)]
-Seed = Annotated[int, pydantic.Field(ge=0, le=2**31 - 1 - 4096, strict=True), Number]
+MAX_SEED = 2**31 - 1 - 4096
+"""The largest seed: an int32 once torchrun has added the rank."""
+Seed = Annotated[int, pydantic.Field(ge=0, le=MAX_SEED, strict=True), Number]
 """A non-negative int32 (the kernels take it as one; torchrun adds the rank)."""
 Range = tuple[Finite, Finite]
 """(low, high): a uniform draw from [low, high]; low == high fixes the value."""

@@ -11,6 +11,7 @@ and the torch side (input checks, views, info).
 """
 
 import abc
+import numbers
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
@@ -18,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from . import camera, randomization
-from .config import EnvConfig, TaskConfig
+from .config import MAX_SEED, EnvConfig, TaskConfig
 from .files import data_path
 from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
 from .randomization import Physics, add_friction
@@ -309,6 +310,9 @@ class BatchedEnv(abc.ABC):
 
     def reset(self, seed: int | None = None) -> "tuple[torch.Tensor, dict]":
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral)
+                                 or not 0 <= seed <= MAX_SEED):
+            raise ValueError(f"seed: expected a whole number in [0, {MAX_SEED}] or None, got {seed!r}")
         with self._order:
             if seed is not None:
                 self._seed(seed)

@@ -229,6 +229,13 @@ def test_same_seed_same_trajectory_other_seed_differs(task, make, random_actions
     assert not torch.allclose(first, other)
 
 
+@pytest.mark.parametrize("seed", [-1, "a", 2.0, True, 2**40])
+def test_a_seed_that_is_no_int32_is_refused(make, seed):
+    env = make(2)
+    with pytest.raises(ValueError, match=r"seed: expected a whole number in \[0, 2147479551\] or None, got "):
+        env.reset(seed=seed)
+
+
 @pytest.mark.parametrize("task", TASKS)
 def test_reset_with_seed_restarts_the_random_stream(task, make):
     env = make(64, seed=0, task_name=task)

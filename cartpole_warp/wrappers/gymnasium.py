@@ -90,6 +90,9 @@ class TaskGymEnv(gym.Env):
 
     def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str = "cpu",
                  seed: int | None = None, render_mode: str | None = None, **overrides):
+        if "num_envs" in overrides:
+            raise ValueError(f"{task_name}'s gymnasium env is one env; for {overrides['num_envs']} use "
+                             "gym.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point')")
         self.core = tasks.make(task_name, num_envs=1, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **render_metadata(self.core)}
