@@ -11,7 +11,6 @@ one frame, and an ended env's stack is kept as its final observation and refille
 from __future__ import annotations
 
 import math
-import os
 from typing import Any
 
 import numpy as np
@@ -19,6 +18,7 @@ import warp as wp
 
 from .config import CameraConfig, ConfigError
 from .kernels import END_DIVERGED, END_NONFINITE
+from .runtime import free_memory_bytes
 
 SKIP_VIEW = wp.constant(-101)
 """``SensorCamera.WorldRenderFlag.DISABLE_PRESERVE``: the view is not rendered and keeps its pixels."""
@@ -179,10 +179,7 @@ def check_memory(cfg: CameraConfig, num_envs: int, device: str):
     """ConfigError with the estimate (``bytes_per_env``) where ``num_envs`` cameras would not fit in the device's free
     memory (the host's available memory on the CPU), before anything is allocated."""
     need = num_envs * bytes_per_env(cfg)
-    if device == "cpu":
-        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    else:
-        free = wp.get_device(device).free_memory
+    free = free_memory_bytes(device)
     if need > free:
         raise ConfigError(
             f"{num_envs:,} cameras of {cfg.width_px}x{cfg.height_px} {cfg.image} frames (frame_stack "

@@ -7,6 +7,7 @@ import argparse
 import logging
 import os
 import re
+import socket
 import sys
 import textwrap
 import warnings
@@ -35,7 +36,21 @@ class ViserArgs:
 
     def problem(self) -> str | None:
         """What is wrong with these values, in one line (None: nothing)."""
+        if not 1 <= self.port <= 65535:
+            return f"--port must be a TCP port, 1-65535, got {self.port}"
         return None if self.viewer_envs >= 1 else f"--viewer-envs must be >= 1, got {self.viewer_envs}"
+
+    def host_problem(self) -> str | None:
+        """Why no page can be served on ``host`` (no address, or not one of this machine's), in one line; None if
+        one can: a socket bound there on a free port and closed (viser's own thread would fail and hang the
+        program)."""
+        try:
+            family, _, _, _, address = socket.getaddrinfo(self.host, None, type=socket.SOCK_STREAM)[0]
+            with socket.socket(family, socket.SOCK_STREAM) as probe:
+                probe.bind((address[0], 0))
+        except OSError as err:
+            return f"--host {self.host}: no page can be served there ({err.strerror or err})"
+        return None
 
 
 def process_age_s() -> float | None:

@@ -14,8 +14,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import re
 import typing
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import pydantic
@@ -64,7 +66,9 @@ Fraction = Annotated[float, pydantic.Field(ge=0, le=1, strict=True), Number]
 Flag = Annotated[bool, pydantic.Strict()]
 """True or False (not 1, 0 or 'yes')."""
 Name = Annotated[str, pydantic.Field(min_length=1)]
-Seed = Annotated[int, pydantic.Field(ge=0, le=2**31 - 1 - 4096, strict=True), Number]
+MAX_SEED = 2**31 - 1 - 4096
+"""The largest seed: an int32 once torchrun has added the rank."""
+Seed = Annotated[int, pydantic.Field(ge=0, le=MAX_SEED, strict=True), Number]
 """A non-negative int32 (the kernels take it as one; torchrun adds the rank)."""
 Range = tuple[Finite, Finite]
 """(low, high): a uniform draw from [low, high]; low == high fixes the value."""
@@ -269,6 +273,8 @@ class EnvConfig(Generic[TaskT]):
         """Raise ConfigError naming the first invalid value and what is allowed; return self. Each field's type and
         range are checked where dicts become configs (``from_dict``); the checks here relate fields."""
         sim, limit_s = self.sim, self.task.episode_length_s
+        check_device_name(self.device)
+        require(sim.stage_path is None or Path(sim.stage_path).is_file(), f"USD stage not found: {sim.stage_path}")
         require(self.num_envs <= MAX_NUM_ENVS,
                 f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
                 f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
@@ -292,6 +298,13 @@ def require(ok: bool, message: str):
     """Raise ConfigError(message) unless ``ok``."""
     if not ok:
         raise ConfigError(message)
+
+
+def check_device_name(device: str):
+    """ConfigError naming the valid devices unless ``device`` is 'cpu', 'cuda' or 'cuda:N' (whether it exists here is
+    ``runtime.resolve_device``'s to say)."""
+    require(str(device) in ("cpu", "cuda") or re.fullmatch(r"cuda:\d+", str(device)) is not None,
+            f"unknown device {device!r}; use 'cpu', 'cuda' (the first GPU) or 'cuda:N'")
 
 
 Config = TypeVar("Config")

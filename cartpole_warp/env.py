@@ -11,13 +11,15 @@ and the torch side (input checks, views, info).
 """
 
 import abc
+import numbers
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
+import numpy as np
 import warp as wp
 
 from . import camera, randomization
-from .config import EnvConfig, TaskConfig
+from .config import MAX_SEED, EnvConfig, TaskConfig
 from .files import data_path
 from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
 from .randomization import Physics, add_friction
@@ -25,6 +27,7 @@ from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bou
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
 
 if TYPE_CHECKING:
+    import gymnasium
     import torch  # imported where used: parsing a command line needs no torch
 
 class BatchedEnv(abc.ABC):
@@ -171,6 +174,10 @@ class BatchedEnv(abc.ABC):
         """(N, num_obs) the task's state observations (zero-copy): the policy's observations unless it sees images,
         else the privileged observations of an asymmetric critic."""
         self.obs_buf = wp.to_torch(self._images) if self.cameras else self.state_obs_buf
+        self.final_state_buf = wp.to_torch(self._results.final_state)
+        """(N, 2 x joint roles) where the last step ended an episode, the joint state it ended at (``set_state``'s
+        layout; the last sound one if the state turned non-finite or diverged), zero-copy: the robot is already
+        reset there."""
         self.reward_buf = wp.to_torch(self._results.reward)
         self.terminated_buf = wp.to_torch(self._results.terminated)
         self.truncated_buf = wp.to_torch(self._results.truncated)
@@ -303,6 +310,9 @@ class BatchedEnv(abc.ABC):
 
     def reset(self, seed: int | None = None) -> "tuple[torch.Tensor, dict]":
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral)
+                                 or not 0 <= seed <= MAX_SEED):
+            raise ValueError(f"seed: expected a whole number in [0, {MAX_SEED}] or None, got {seed!r}")
         with self._order:
             if seed is not None:
                 self._seed(seed)
@@ -384,6 +394,45 @@ class BatchedEnv(abc.ABC):
     def get_state_observations(self) -> "torch.Tensor":
         """The task's state observations (N, num_obs), a fresh tensor (the critic's where the policy sees images)."""
         return self.state_obs_buf.clone()
+
+    @property
+    def single_observation_space(self) -> "gymnasium.spaces.Box":
+        """One env's observations as a gymnasium space: ``num_obs`` unbounded float32 (the task's docstring names
+        them), or with a camera its frames (``obs_shape``): uint8 in [0, 255] (rgb) or float32 metres (depth)."""
+        import gymnasium
+
+        if self.cfg.camera.image == "rgb":
+            return gymnasium.spaces.Box(0, 255, self.obs_shape, np.uint8)
+        low = 0.0 if self.cfg.camera.image == "depth" else -np.inf
+        return gymnasium.spaces.Box(low, np.inf, self.obs_shape, np.float32)
+
+    @property
+    def single_action_space(self) -> "gymnasium.spaces.Box":
+        """One env's actions as a gymnasium space: ``num_actions`` values in [-1, 1] (the env clips to it)."""
+        import gymnasium
+
+        return gymnasium.spaces.Box(-1.0, 1.0, (self.num_actions,), np.float32)
+
+    @property
+    def observation_space(self) -> "gymnasium.spaces.Box":
+        """The batch's observations, (num_envs, ...) (gymnasium's vector-env convention, as Isaac Lab's)."""
+        from gymnasium.vector.utils import batch_space
+
+        return batch_space(self.single_observation_space, self.num_envs)
+
+    @property
+    def action_space(self) -> "gymnasium.spaces.Box":
+        """The batch's actions, (num_envs, num_actions)."""
+        from gymnasium.vector.utils import batch_space
+
+        return batch_space(self.single_action_space, self.num_envs)
+
+    def __repr__(self) -> str:
+        limit = (f"time limit {self.max_episode_length} steps ({self.cfg.task.episode_length_s:g} s)"
+                 if self.cfg.task.episode_length_s is not None else "no time limit")
+        return (f"<{type(self).__name__}: {self.num_envs} envs on {self.device}, observations "
+                f"{self.single_observation_space}, actions {self.single_action_space}, {limit}, "
+                f"env step {self.env_dt:g} s>")
 
     @property
     def obs_shape(self) -> tuple[int, ...]:

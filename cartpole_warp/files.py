@@ -41,3 +41,18 @@ def atomic_write(path: Path, write: Callable[[str], object]) -> Path:
 def write_text(path: Path, text: str) -> Path:
     """Write a text file atomically."""
     return atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+
+def unwritable(folder: Path) -> str | None:
+    """Why ``folder`` (which may not exist yet) cannot be created and written, in words; None if it can: a folder
+    made and removed in its nearest existing parent (permission bits do not tell root's failures, e.g. in /proc)."""
+    parent = Path(folder).absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{parent} is not a folder"
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-test-", dir=parent))
+    except OSError as err:
+        return f"cannot write in {parent}: {err.strerror}"
+    return None

@@ -106,9 +106,10 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         "(rsl-rl's ``episode_length_buf``), the steps it really ran, its return.")
     StepResults = _struct(f"{prefix}_StepResults", __name__, {
         "reward": wp.array(dtype=float), "terminated": wp.array(dtype=wp.bool), "truncated": wp.array(dtype=wp.bool),
-        "final_obs": wp.array(dtype=Obs), "ended_return": wp.array(dtype=float),
+        "final_obs": wp.array(dtype=Obs), "final_state": wp.array(dtype=State), "ended_return": wp.array(dtype=float),
         "ended_length": wp.array(dtype=wp.int32), "end_reason": wp.array(dtype=wp.int32)},
-        "What a step hands back per env; the ended episode's return, length and reason where it ended.")
+        "What a step hands back per env; the ended episode's last sound joint state (per role: position, velocity), "
+        "return, length and reason where it ended.")
     StepSettings = _struct(f"{prefix}_StepSettings", __name__, {
         "noise_std": float, "divergence_limit": float, "max_episode_length": int},
         "Observation noise, the joint magnitude beyond which physics counts as diverged, the time limit (steps).")
@@ -261,6 +262,15 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
             episodes.steps_run[env] = episodes.steps_run[env] + 1
             episodes.episode_return[env] = ret
         else:
+            final_q, final_qd = q, qd
+            if not all_within(q, qd, settings.divergence_limit):
+                final_q = Joints(episodes.last_q[env])
+                final_qd = Joints(episodes.last_qd[env])
+            final = State()
+            for role in range(num_joints):
+                final[2 * role] = final_q[role]
+                final[2 * role + 1] = final_qd[role]
+            results.final_state[env] = final
             results.ended_return[env] = ret
             results.ended_length[env] = episodes.steps_run[env] + 1
             q0, qd0 = fns.sample_reset(episodes.rng_state, env, p)

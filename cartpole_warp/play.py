@@ -19,6 +19,8 @@ import functools
 import json
 import math
 import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Generic, Literal
@@ -28,7 +30,7 @@ import tyro
 from . import tasks
 from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
 from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
-from .files import write_text
+from .files import unwritable, write_text
 from .rl.config import TrainConfig, checked, train_config
 from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_run, load_config, play_checkpoint
 from .scene import StageError
@@ -51,7 +53,8 @@ class PlayArgs(Generic[TaskT]):
     run: Path | None = None
     """Run folder (default: the newest run under --log-dir)."""
     checkpoint: Path | None = None
-    """Checkpoint file (default: the run's best by its evaluations, model_best.pt, else its latest)."""
+    """Checkpoint file (default: the run's best by its evaluations, model_best.pt, else its latest); it plays with its
+    own folder's config.yaml, so --run, if given too, must be that folder."""
     log_dir: str = "logs"
     """Root folder of all runs (train.py's --log-dir)."""
     experiment_name: str | None = None
@@ -117,6 +120,9 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
             checkpoint = Path(first.checkpoint)
             if not checkpoint.is_file():
                 raise RunError(f"checkpoint {checkpoint} not found")
+            require(not first.run or Path(first.run).resolve() == checkpoint.parent.resolve(),
+                    f"--checkpoint {checkpoint} is not in --run {first.run}: a checkpoint plays in its own run "
+                    "folder (its config.yaml, its play/): give one of them")
         else:
             experiment = first.experiment_name or task
             run = Path(first.run) if first.run else latest_run(first.log_dir, experiment, "--experiment-name")
@@ -156,8 +162,9 @@ def grid_envs(args: PlayArgs, cfg: TrainConfig, argv: list[str]):
     axes = args.grid(cfg.task_spec.env_class.joint_roles)
     names = [axis.name for axis in axes]
     require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
-    require(all(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)) for axis in axes),
-            "every --grid-*-factors list needs finite factors >= 0")
+    for axis, flag in zip(axes, (f"--grid-{letter}-factors" for letter in "xyz")):
+        require(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)),
+                f"{flag} needs finite factors >= 0, got {' '.join(f'{f:g}' for f in axis.factors) or 'none'}")
     cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
     delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
     require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")
@@ -179,9 +186,14 @@ def play(argv: list[str]) -> int:
     """play.py's work; ViewerUnavailable when the viewer is asked for and cannot open."""
     with clean_errors(ConfigError, RunError, StageError):
         args, cfg, checkpoint = resolve(argv)
+        if args.headless:
+            output = output_dir(args, checkpoint)
+            problem = unwritable(output)
+            require(problem is None, f"the output folder {output} cannot be written: {problem}")
         if not args.headless and args.viewer == "viser":
             from .viz.web import check_viser
 
+            require(args.viser.host_problem() is None, args.viser.host_problem())
             check_viser()
         elif not args.headless:
             from .viz.viewer import check_viewer
@@ -197,7 +209,7 @@ def play(argv: list[str]) -> int:
             return evaluate_robustness(args, cfg, env, policy, checkpoint)
         if args.headless:
             return play_headless(args, cfg, env, policy, checkpoint)
-        return view(args, env, policy)
+        return view(args, env, policy, cfg.task_spec.play_metric)
 
 
 def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) -> Policy:
@@ -221,7 +233,7 @@ def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) 
     return runner.policy()
 
 
-def view(args: PlayArgs, env, policy: Policy) -> int:
+def view(args: PlayArgs, env, policy: Policy, play_metric: str) -> int:
     """The policy in Newton's window or, with --viewer viser, in a browser, until the viewer closes."""
     if args.viewer == "viser":
         from .viz.web import view_in_browser
@@ -229,7 +241,7 @@ def view(args: PlayArgs, env, policy: Policy) -> int:
         viser = args.viser
         steps = view_in_browser(env, policy, viser.host, viser.port, viser.viewer_envs, max_steps=args.steps,
                                 on_ready=lambda url: print(f"watch it at {url} (Ctrl-C ends)", flush=True),
-                                title=args.task)
+                                title=args.task, play_metric=play_metric)
     else:
         from .viz.viewer import view_interactively
 
@@ -248,10 +260,9 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     task = cfg.task_spec
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
-    camera = ((lambda: env.obs_buf[0].to("cpu", copy=True).numpy(), env.cfg.camera.image) if env.cameras else None)
-    recorder = Recorder(env.scene, env.env_dt, output, video_length=args.video_length, viser=args.record_viser,
-                        camera=camera)
-    stats = rollout(env, policy, steps, on_step=recorder, seed=cfg.env.seed)
+    recorder = Recorder.of_env(env, output, video_length=args.video_length, viser=args.record_viser)
+    print(f"playing {env.num_envs} envs for {steps} env steps ...", flush=True)
+    stats = rollout(env, policy, steps, on_step=with_progress(recorder, steps), seed=cfg.env.seed)
     pictures = recorder.close()
     at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length
     limit = f"the {cfg.env.task.episode_length_s:g} s time limit" if at_limit else f"the {steps}-step cap"
@@ -273,6 +284,28 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     if not video_available():
         print(f"no MP4: {VIDEO_EXTRA} adds it")
     return 0
+
+
+PROGRESS_EVERY_S = 10.0
+"""A rollout that runs longer prints how far it is this often (a camera task on the CPU plays for a minute)."""
+
+
+def with_progress(on_step: Callable[[int], None], steps: int,
+                  every_s: float = PROGRESS_EVERY_S) -> Callable[[int], None]:
+    """``on_step`` that also prints, every ``every_s`` seconds, the steps done and an estimate of the time left."""
+    start = time.perf_counter()
+    next_s = start + every_s
+
+    def step(k: int):
+        nonlocal next_s
+        on_step(k)
+        now = time.perf_counter()
+        if 0 < k < steps and now >= next_s:
+            print(f"  {k}/{steps} env steps in {now - start:.0f} s, about {(now - start) / k * (steps - k):.0f} s "
+                  "left", flush=True)
+            next_s = now + every_s
+
+    return step
 
 
 def output_dir(args: PlayArgs, checkpoint: Path | None) -> Path:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
-from .config import ConfigError
+from .config import ConfigError, check_device_name
 
 if TYPE_CHECKING:
     from . import streams
@@ -100,16 +100,22 @@ NO_CUDA = "device {!r} requested but no CUDA device is available here; use --dev
 """The error for a CUDA device on a machine without one (``NO_CUDA.format(device)``)."""
 
 
+def free_memory_bytes(device: str) -> int:
+    """Memory free for new buffers: the host's available memory for 'cpu', else the CUDA device's free memory."""
+    if device == "cpu":
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    return wp.get_device(device).free_memory
+
+
 def resolve_device(device: str) -> str:
     """'cpu' or 'cuda:N' from 'cpu', 'cuda' or 'cuda:N'; ConfigError if it does not exist here."""
     import torch
 
+    check_device_name(device)
     init_warp()
     name = "cuda:0" if str(device) == "cuda" else str(device)
     if name == "cpu":
         return name
-    if not name.startswith("cuda:") or not name[5:].isdigit():
-        raise ConfigError(f"unknown device {device!r}; use 'cpu' or 'cuda:N'")
     if not wp.is_cuda_available() or not torch.cuda.is_available():
         raise ConfigError(NO_CUDA.format(device))
     if int(name[5:]) >= wp.get_cuda_device_count():

@@ -77,3 +77,8 @@ class EpisodeStats:
 
 METRICS = tuple(f.name for f in dataclasses.fields(EpisodeSummary) if f.type == "float | None")
 """The ``EpisodeSummary`` fields that are means (a task's ``play_metric`` names one)."""
+METRIC_LABELS = {"mean_return": "mean return", "mean_episode_length": "mean episode length (steps)",
+                 "mean_reward_per_step": "mean reward per step",
+                 "time_limit_fraction": "episodes reaching the time limit",
+                 "full_reward_per_step": "mean reward per step of full-length episodes"}
+"""Each of ``METRICS`` in words."""

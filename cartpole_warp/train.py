@@ -36,11 +36,12 @@ from .cli import (
     with_default_value,
 )
 from .config import ConfigError, TaskT, require
+from .files import unwritable
 from .presets import presets
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
-from .runtime import NO_CUDA, timed
+from .runtime import NO_CUDA, resolve_device, timed
 from .scene import StageError
 
 
@@ -63,6 +64,25 @@ class TrainArgs(Generic[TaskT]):
     """--viewer viser: seconds between the page's updates. Each update makes the browser redraw: a browser without a
     GPU, on the training's own cores, then slows training the more, the shorter this."""
     viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
+    video: bool = False
+    """A clip of the policy in <run>/videos/ every --video-interval iterations. The first iteration has one;
+    MP4 with the video extra, else GIF, played on an env of its own; the logger shows where each one is."""
+    video_length: int = 200
+    """--video: env steps per clip."""
+    video_interval: int = 50
+    """--video: iterations between clips."""
+
+
+class IterationHooks(list):
+    """Several ``runner.on_iteration`` callbacks (the browser view, the clips), called in order, closed together."""
+
+    def __call__(self, it: int, summary) -> None:
+        for hook in self:
+            hook(it, summary)
+
+    def close(self):
+        for hook in self:
+            hook.close()
 
 
 ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-name": "--agent.run-name",
@@ -114,8 +134,13 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     require(args.viser.problem() is None, args.viser.problem())
     require(math.isfinite(args.viewer_interval_s) and args.viewer_interval_s >= 0,
             f"--viewer-interval-s must be finite and >= 0, got {args.viewer_interval_s}")
+    require(args.video_length >= 1, f"--video-length must be >= 1, got {args.video_length}")
+    require(args.video_interval >= 1, f"--video-interval must be >= 1, got {args.video_interval}")
     cfg = checked(args.cfg).validate()
-    return cfg, run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name), checkpoint, args
+    run_dir = run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name)
+    problem = unwritable(run_dir)
+    require(problem is None, f"the run folder {run_dir} cannot be written: {problem}")
+    return cfg, run_dir, checkpoint, args
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -129,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.viewer == "viser":
             from .viz.web import ViewerUnavailable, check_viser
 
+            require(args.viser.host_problem() is None, args.viser.host_problem())
+
             try:
                 check_viser()
             except ViewerUnavailable as err:
@@ -136,10 +163,12 @@ def main(argv: list[str] | None = None) -> int:
         with timed(timing_s, "imports"):
             import torch
 
-            from .rl.training import Training
+            from .rl.training import Training, check_memory
 
-        if not ranks.distributed and cfg.env.device != "cpu" and not torch.cuda.is_available():  # before the build
-            raise ConfigError(NO_CUDA.format(cfg.env.device))
+        if not ranks.distributed:  # before the build
+            if cfg.env.device != "cpu" and not torch.cuda.is_available():
+                raise ConfigError(NO_CUDA.format(cfg.env.device))
+            check_memory(cfg, resolve_device(cfg.env.device))
         if ranks.writes:
             print(f"building {cfg.env.num_envs} envs on "
                   f"{f'{ranks.world_size} GPUs' if ranks.distributed else cfg.env.device}...", flush=True)
@@ -154,14 +183,14 @@ def main(argv: list[str] | None = None) -> int:
                 training.runner.on_iteration.close()
             if torch.distributed.is_initialized():
                 torch.distributed.destroy_process_group()
-    if summary is None:
-        return 130 if training.runner.stop_reason == "interrupted" else 0
-    report(summary, run_dir, checkpoint)
-    if argv is None:
-        gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
-    total = process_age_s() if argv is None else None
-    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
-    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
+        if summary is None:
+            return 130 if training.runner.stop_reason == "interrupted" else 0
+        report(summary, run_dir, checkpoint)  # summary.json is written: a Ctrl-C now only cuts these lines short
+        if argv is None:
+            gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
+        total = process_age_s() if argv is None else None
+        phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
+        print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
     return 130 if summary.status == "interrupted" else 0
 
 
@@ -170,14 +199,23 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
     print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
     print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
           flush=True)
+    hooks = IterationHooks()
     if args.viewer == "viser":
         from .viz.web import TrainingView
 
         view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
                             args.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
-                            title=training.cfg.task)
-        training.runner.on_iteration = view
+                            title=training.cfg.task, play_metric=training.task.play_metric)
+        hooks.append(view)
         print(f"watch it at {view.url}", flush=True)
+    if args.video:
+        from .rl.video import VIDEO_DIR, TrainingVideo
+
+        hooks.append(TrainingVideo(training, args.video_length, args.video_interval))
+        print(f"clips of {args.video_length} env steps every {args.video_interval} iterations: "
+              f"{run_dir / VIDEO_DIR}", flush=True)
+    if hooks:
+        training.runner.on_iteration = hooks
 
 
 def report(summary, run_dir: Path, checkpoint: Path | None):

@@ -49,7 +49,7 @@ def warm_up(args: WarmupArgs) -> None:
         env.step(torch.zeros(1, env.num_actions, device=env.device))
         if args.recording:
             with tempfile.TemporaryDirectory() as out:
-                recorder = Recorder(env.scene, env.env_dt, out)
+                recorder = Recorder.of_env(env, out)
                 recorder(0)
                 recorder.close()
         env.close()

@@ -257,18 +257,24 @@ def test_training_draws_the_page_at_most_every_interval(make, interval_s):
     assert drawn == ([0.0, 1.0, 2.0] if interval_s == 0 else [0.0])
 
 
-@pytest.mark.parametrize("episode_length_s", [10.0, None])
-def test_the_page_gives_the_share_at_the_time_limit_only_where_the_task_has_one(make, episode_length_s):
+@pytest.mark.parametrize("episode_length_s, play_metric, expected", [
+    (10.0, "time_limit_fraction", "; 769 episodes ended, 768 of them at the time limit"),
+    (None, "time_limit_fraction", "; 769 episodes ended"),
+    (10.0, "full_reward_per_step", "; 769 episodes ended, mean reward per step of full-length episodes 0.100"),
+])
+def test_the_page_gives_the_tasks_play_metric_without_rounding_to_all(make, episode_length_s, play_metric, expected):
+    """768 of 769 episodes at the time limit read as such (not '100%'); a task whose play metric is another mean (the
+    swing-up's reward per step) shows that."""
     from cartpole_warp.statistics import EpisodeStats
     from cartpole_warp.viz.web import WebViewer
 
     env = make(num_envs=4, task={"episode_length_s": episode_length_s})
     stats = EpisodeStats(env.device, env.max_episode_length)
-    ended = torch.tensor([True, True, True, False])
-    stats.add(ended, torch.ones(4), torch.full((4,), 10), torch.tensor([True, False, False, False]))
-    viewer = WebViewer(env, "127.0.0.1", free_port(), 4)
+    ended = torch.ones(769, dtype=torch.bool)
+    stats.add(ended, torch.full((769,), 60.0), torch.full((769,), env.max_episode_length), torch.arange(769) > 0)
+    viewer = WebViewer(env, "127.0.0.1", free_port(), 4, play_metric=play_metric)
     try:
         line = viewer.ended(stats.summary())
     finally:
         viewer.close()
-    assert line == ("; 3 episodes ended, 33% at the time limit" if episode_length_s else "; 3 episodes ended")
+    assert line == expected

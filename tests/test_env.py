@@ -53,6 +53,19 @@ def episodes_ended(trajectory) -> int:
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_the_raw_env_has_gymnasium_spaces_of_its_sizes_and_a_readable_repr(make, task):
+    env = make(num_envs=3, task_name=task)
+    obs, _ = env.reset()
+    assert env.single_observation_space.shape == env.obs_shape == tuple(obs.shape[1:])
+    assert env.observation_space.shape == tuple(obs.shape) and env.observation_space.contains(obs.cpu().numpy())
+    assert env.single_action_space.shape == (env.num_actions,) and env.action_space.shape == (3, env.num_actions)
+    assert env.action_space.contains(env.action_space.sample())
+    text = repr(env)
+    assert text.startswith(f"<{type(env).__name__}: 3 envs on {env.device}, observations Box(")
+    assert "actions Box(-1.0, 1.0, (1,), float32)" in text and text.endswith(">")
+
+
+@pytest.mark.parametrize("task", TASKS)
 def test_every_task_names_its_end_reasons(task, make):
     env = make(2, task_name=task)
     assert env.end_reasons[:4] == COMMON_ENDS == ("running", "time_limit", "nonfinite_state", "diverged_state")
@@ -214,6 +227,13 @@ def test_same_seed_same_trajectory_other_seed_differs(task, make, random_actions
     other = rollout(make(64, seed=12, task_name=task, task=SHORT_EPISODES), actions)
     assert torch.equal(first, again)
     assert not torch.allclose(first, other)
+
+
+@pytest.mark.parametrize("seed", [-1, "a", 2.0, True, 2**40])
+def test_a_seed_that_is_no_int32_is_refused(make, seed):
+    env = make(2)
+    with pytest.raises(ValueError, match=r"seed: expected a whole number in \[0, 2147479551\] or None, got "):
+        env.reset(seed=seed)
 
 
 @pytest.mark.parametrize("task", TASKS)

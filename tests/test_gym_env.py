@@ -179,3 +179,8 @@ def test_wrong_action_count_is_a_clear_error(task):
     venv.reset(seed=0)
     with pytest.raises(ValueError, match="expected 4 action value"):
         venv.step(np.zeros((3, 1), np.float32))
+
+
+def test_an_env_count_for_the_single_env_says_where_it_belongs():
+    with pytest.raises(ValueError, match=r"gymnasium env is one env; for 8 use gym.make_vec\(id, num_envs=N, "):
+        gym.make("cartpole_warp/Cartpole-v0", num_envs=8)

@@ -1,5 +1,6 @@
 """The runner (``rl/runner.py``): random episode starts, the phase clock, the policy play loads, the progress line."""
 
+import re
 import time
 
 import pytest
@@ -7,7 +8,7 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import TaskRunner
+from cartpole_warp.rl.runner import TaskRunner, eta_s
 from cartpole_warp.rl.runs import (
     RunError,
 )
@@ -86,3 +87,27 @@ def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(caps
     assert [row.split(" | ")[1].strip() for row in rows] == [
         f"no episode ended; 16 running, {2 * dt:5.2f} s in on average",
         f"no episode ended; 16 running, {4 * dt:5.2f} s in on average"], rows
+
+
+def test_the_eta_counts_the_evaluations_measured_so_far():
+    """10 iterations took 100 s, of which two evaluations 30 s each: 4 s per iteration; 20 iterations and 3
+    evaluations left take 80 + 90 s. Before any evaluation has run there is nothing to count them by."""
+    assert eta_s(100.0, [30.0, 30.0], 10, 20, 3) == pytest.approx(170.0)
+    assert eta_s(40.0, [], 10, 20, 3) == pytest.approx(80.0)
+
+
+def test_a_run_that_will_take_hours_says_so_after_its_first_iteration(capsys):
+    """A 16-env run asked for 10**7 iterations: its first progress line is followed by the note with the estimate and
+    what makes it shorter."""
+    cfg = train_config()
+    cfg.env.num_envs, cfg.agent.num_steps_per_env = 16, 2
+    runner = TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
+    runner.learn(1)
+    assert "note:" not in capsys.readouterr().out, "a short run has nothing to say"
+    runner.request_stop()  # after the first iteration
+    runner.learn(10**7)
+    out = capsys.readouterr().out
+    note = out.splitlines()[1]
+    assert re.fullmatch(r"note: at this pace the 10000000 iterations of cartpole-balance take about \d+h\d\dm more on "
+                        r"cpu \(16 envs\): a GPU \(--device cuda\) is far faster \(docs/tasks.md: each task's measured "
+                        r"times\), or set fewer --max-iterations", note), out

@@ -3,6 +3,7 @@ rule only in its (noisy) training episodes is not solved, one whose mean action 
 training episodes show, the best evaluation is kept as model_best.pt and play.py loads it by default."""
 
 import dataclasses
+import signal
 
 import pytest
 import torch
@@ -117,3 +118,39 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
 @pytest.mark.parametrize("name", tasks.names())
 def test_every_tasks_rule_refuses_a_summary_without_episodes(name):
     assert not tasks.get(name).solved(EpisodeSummary(0, None, None, None, None))
+
+
+def test_the_learning_curve_shows_the_whole_run_not_the_progress_saved_with_the_best_checkpoint(tmp_path):
+    """The export after training loads model_best.pt's policy: the run's own history (every iteration) stays what
+    the learning curve is drawn from and summary.json counts."""
+    training = make_training(tmp_path, min_interval=1, max_interval=1)
+    training.cfg.agent.max_iterations = 3
+    set_policy_mean(training, BALANCING_GAINS, std=1.0)
+    training_episodes(training, FAILING)
+    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    summary = training.run()
+    assert summary.best["iteration"] == 0 and summary.iterations == 3
+    assert [h["iteration"] for h in training.runner.progress.history] == [0, 1, 2], "the curve's history"
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_a_signal_once_training_has_ended_waits_for_the_summary(tmp_path, signals, capsys):
+    """SIGINT delivered while the policy is exported (right after the last iteration line, e.g. one reading SOLVED),
+    once or twice: the exports, the curve and summary.json are still written, and the run's status is what training
+    reached."""
+    training = make_training(tmp_path)
+    training.cfg.agent.max_iterations = 1
+    export = training.runner.export
+
+    def export_under_signals(out_dir):
+        for _ in range(signals):
+            signal.raise_signal(signal.SIGINT)
+        return export(out_dir)
+
+    training.runner.export = export_under_signals
+    handler = signal.getsignal(signal.SIGINT)  # Python's, or pytest-xdist's worker's SIG_IGN
+    summary = training.run()
+    assert summary.status == "completed" and (training.run_dir / "summary.json").is_file()
+    assert (training.run_dir / "learning_curve.png").is_file() and len(summary.exports) == 2
+    assert "writing the run's exports, curve and summary first" in capsys.readouterr().out
+    assert signal.getsignal(signal.SIGINT) is handler, "the handler is restored"

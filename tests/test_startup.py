@@ -42,6 +42,25 @@ assert (wp.config.log_level, wp.config.enable_backward) == (level, backward), "a
     assert result.stdout == "" and result.stderr == "", result.stdout + result.stderr
 
 
+def test_rendering_and_gymnasiums_env_checker_print_nothing():
+    """A gymnasium env's first ``render()`` (gymnasium's ``check_env``, ``RecordVideo``) loads Newton's kinematics
+    module: silently, as the build does, in a process that has loaded nothing else."""
+    code = """
+import warnings
+import gymnasium as gym
+import cartpole_warp
+from gymnasium.utils.env_checker import check_env
+warnings.simplefilter("ignore")  # check_env's warnings on unbounded observation spaces
+env = gym.make("cartpole_warp/Cartpole-v0", render_mode="rgb_array")
+check_env(env.unwrapped)
+env.reset(seed=0)
+assert env.render().ndim == 3
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "" and result.stderr == "", result.stdout + result.stderr
+
+
 def test_verbose_lets_warps_lines_through():
     result = python("import cartpole_warp; cartpole_warp.make_env(num_envs=4, device='cpu', verbose=True)")
     assert result.returncode == 0, result.stderr
@@ -49,20 +68,24 @@ def test_verbose_lets_warps_lines_through():
 
 
 @pytest.mark.parametrize("script, flags", [("train", []), ("play", ["--agent", "zero"])])
-def test_a_bad_flag_is_answered_before_newton_and_torch_load(script, flags):
-    """The command line is parsed and checked before the heavy imports: a mistyped flag gets tyro's error (exit 2)
-    without Newton or torch (seconds of import each) in the process."""
+@pytest.mark.parametrize("bad, message", [(["--num-envz", "3"], "--num-envz"),
+                                          (["--env.sim.stage-path", "missing.usda"],
+                                           "error: USD stage not found: missing.usda"),
+                                          (["--device", "gpu"], "error: unknown device 'gpu'")])
+def test_a_bad_flag_is_answered_before_newton_and_torch_load(script, flags, bad, message):
+    """The command line is parsed and checked before the heavy imports: a mistyped flag gets tyro's error (exit 2),
+    a missing stage or an unknown device one line, without Newton or torch (seconds of import each) in the process."""
     code = f"""
 import sys
 from cartpole_warp.{script} import main
 try:
-    main({flags!r} + ["--num-envz", "3"])
+    main({flags!r} + {bad!r})
 except SystemExit as stop:
     print(stop.code, "newton" in sys.modules, "torch" in sys.modules)
 """
     result = python(code)
     assert result.stdout.split() == ["2", "False", "False"], result.stdout + result.stderr
-    assert "--num-envz" in result.stderr
+    assert message in result.stderr
 
 
 def test_play_keeps_torch_dynamo_out_of_its_process(tmp_path, run_main):

@@ -39,6 +39,22 @@ def test_the_registry_finds_every_task_and_names_the_known_ones():
     assert swingup.max_episode_length == 500 and balance.max_episode_length == double.max_episode_length == 600
 
 
+def test_the_docs_task_table_lists_every_task_its_gymnasium_ids_and_its_budget(repo):
+    """docs/tasks.md (what each task costs, where): a row per task of the package, with its gymnasium ids and its
+    default budget of iterations."""
+    rows = {}
+    for line in (repo / "docs" / "tasks.md").read_text().splitlines():
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        if line.startswith("| `") and len(cells) == 6:
+            rows[cells[0].strip("`")] = cells
+    shipped = [name for name in tasks.names() if tasks.get(name).env_class.__module__.startswith("cartpole_warp.")]
+    assert sorted(rows) == sorted(shipped)
+    for name in shipped:
+        ids = {gym_id.strip("`") for gym_id in rows[name][1].split(", ")}
+        assert ids == set(tasks.get(name).gym_ids), name
+        assert rows[name][2] == str(train_config(name).agent.max_iterations), name
+
+
 def test_a_preset_for_another_task_is_refused_alike_by_every_entry_point(tmp_path, run_main):
     preset = tmp_path / "swing.yaml"
     preset.write_text("task: cartpole-swingup\nagent:\n  max_iterations: 3\nenv:\n  num_envs: 8\n")

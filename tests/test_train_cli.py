@@ -173,7 +173,8 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     (["--grid-x", "actuator_scale"], "each grid axis needs its own parameter, got actuator_scale, actuator_scale"),
     (["--num-envs", "16"], "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs"),
     (["--env.num-envs", "16"], "drop --num-envs"),
-    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "inf"], "needs finite factors >= 0"),
+    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "inf"],
+     "error: --grid-x-factors needs finite factors >= 0, got 0 inf"),
     (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "1e12"],
      "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
 ])
@@ -261,6 +262,31 @@ def test_play_names_what_it_cannot_find_and_its_own_flags(trained, run_main, fla
     assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr, result.stderr
 
 
+def test_play_refuses_a_checkpoint_outside_the_run_it_is_given(trained, tmp_path, run_main):
+    """--run A --checkpoint B (B of another run) would play B's task and overwrite B's play/: one error instead."""
+    _, run, _ = trained
+    other = shutil.copytree(run, tmp_path / "other", ignore=shutil.ignore_patterns("play"))
+    played = {path: path.stat().st_mtime_ns for path in run.glob("play/*")}
+    result = run_main("play", "--headless", "--run", other, "--checkpoint", run / "model_1.pt")
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr == (f"error: --checkpoint {run / 'model_1.pt'} is not in --run {other}: a checkpoint plays "
+                             "in its own run folder (its config.yaml, its play/): give one of them\n")
+    assert not (other / "play").exists() and {path: path.stat().st_mtime_ns for path in run.glob("play/*")} == played
+
+
+@pytest.mark.parametrize("script", ["train", "play"])
+@pytest.mark.parametrize("flags, message", [
+    (["--port", "99999"], "error: --port must be a TCP port, 1-65535, got 99999\n"),
+    (["--host", "192.0.2.1"],
+     "error: --host 192.0.2.1: no page can be served there (Cannot assign requested address)\n"),
+])
+def test_a_page_that_cannot_be_served_is_one_line_before_any_server(tmp_path, run_main, script, flags, message):
+    """viser's server thread raised and the program hung; 192.0.2.1 is a documentation address no host has."""
+    result = run_main(script, "--viewer", "viser", *flags, "--log-dir", tmp_path,
+                      *(["--agent", "zero"] if script == "play" else []))
+    assert result.returncode == 2 and result.stdout == "" and result.stderr == message
+
+
 @pytest.mark.parametrize("content", [b"not a checkpoint", None])
 def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, content, run_main):
     _, run, _ = trained
@@ -280,6 +306,12 @@ def test_play_without_a_display_suggests_headless(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     result = run_script("play.py", "--agent", "zero", "--log-dir", tmp_path, "--num-envs", "2", env=env)
     assert result.returncode == 1 and "--headless" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_play_refuses_an_output_folder_it_cannot_write_before_it_builds(run_main):
+    result = run_main("play", "--headless", "--agent", "zero", "--output", "/dev/null/play")
+    assert result.returncode == 2 and result.stdout == "" and result.stderr == (
+        "error: the output folder /dev/null/play cannot be written: /dev/null is not a folder\n")
 
 
 def test_play_zero_agent_needs_no_checkpoint(tmp_path, run_main):
@@ -314,7 +346,7 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
         assert "--env.sim.physics-dt" in full.stdout and "--env.sim.physics-dt" not in short.stdout
         assert ("--agent.algorithm.entropy-coef" in full.stdout) == (script == "train"), script
     train_help = run_main("train", "--help").stdout
-    assert len(train_help.splitlines()) <= 80, "train.py --help is for the common flags"
+    assert len(train_help.splitlines()) <= 85, "train.py --help is for the common flags"
     presets = sorted(path.stem for path in (Path(__file__).parent.parent / "configs").glob("*.yaml"))
     assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
@@ -345,6 +377,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),
     (["--viewer-interval-s", "-1"], "error: --viewer-interval-s must be finite and >= 0, got -1.0"),
     (["--viewer-interval-s", "nan"], "error: --viewer-interval-s must be finite and >= 0, got nan"),
+    (["--device", "gpu"], "error: unknown device 'gpu'; use 'cpu', 'cuda' (the first GPU) or 'cuda:N'"),
+    (["--log-dir", "/dev/null/logs"], "error: the run folder /dev/null/logs/rsl_rl/cartpole-balance/"),
 ])
 def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
     result = run_main("train", "--log-dir", tmp_path, *args)
@@ -352,6 +386,20 @@ def test_bad_flag_values_are_clear_errors(tmp_path, run_main, args, message):
     assert not (tmp_path / "rsl_rl").exists()
     if message.startswith("error:"):
         assert result.stderr.strip().count("\n") == 0, "one line"
+
+
+def test_state_envs_that_cannot_fit_are_refused_in_one_line_before_the_build(tmp_path, run_main, monkeypatch):
+    """As the camera path does: the estimate (the env's measured bytes, rsl-rl's storage derived from its buffers)
+    against the free memory, here a machine with 1 GB free."""
+    from cartpole_warp.rl import training
+
+    monkeypatch.setattr(training, "free_memory_bytes", lambda device: 10**9)
+    result = run_main("train", "--num-envs", "3500000", "--log-dir", tmp_path)
+    assert result.returncode == 2 and result.stdout == "", result.stdout
+    assert result.stderr == ("error: training 3,500,000 envs of cartpole-balance needs about 31.1 GB on cpu (8.9 kB "
+                             "per env: the scene and rsl-rl's storage of 8 steps per env); cpu has 1.0 GB free: use at "
+                             "most ~112,485 envs (--num-envs) or fewer --agent.num-steps-per-env\n")
+    assert not (tmp_path / "rsl_rl").exists()
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error on a machine without a GPU")
@@ -482,3 +530,16 @@ def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
     run = only_run(tmp_path)
     assert json.loads((run / "summary.json").read_text())["solved"]
     assert yaml.safe_load((run / "config.yaml").read_text())["env"]["task"]["cart_joint"] == "slider_to_cart"
+
+
+def test_a_long_rollout_says_how_far_it_is(capsys):
+    """play.py's rollout prints its progress every PROGRESS_EVERY_S seconds (here every step: 0 s)."""
+    from cartpole_warp.play import with_progress
+
+    seen = []
+    step = with_progress(seen.append, 3, every_s=0.0)
+    for k in range(4):
+        step(k)
+    lines = capsys.readouterr().out.splitlines()
+    assert seen == [0, 1, 2, 3] and len(lines) == 2, lines
+    assert re.fullmatch(r"  1/3 env steps in \d+ s, about \d+ s left", lines[0]), lines

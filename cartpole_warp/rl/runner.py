@@ -58,7 +58,22 @@ class NullLogWriter(LogWriter):
 
 def format_duration(seconds: float) -> str:
     seconds = int(round(seconds))
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
     return f"{seconds // 60}m{seconds % 60:02d}s" if seconds >= 60 else f"{seconds}s"
+
+
+LONG_RUN_S = 3600.0
+"""A run whose first iteration foretells more than this says so, with what makes it shorter."""
+
+
+def eta_s(elapsed_s: float, evaluation_s: list[float], iterations_done: int, iterations_left: int,
+          evaluations_left: int) -> float:
+    """Seconds to a run's end: the iterations left at the mean pace of those done (their evaluations taken out), and
+    the evaluations still due at the mean of those measured so far (none counted before the first has run)."""
+    per_iteration_s = (elapsed_s - sum(evaluation_s)) / iterations_done
+    per_evaluation_s = sum(evaluation_s) / len(evaluation_s) if evaluation_s else 0.0
+    return per_iteration_s * iterations_left + per_evaluation_s * evaluations_left
 
 
 def in_git_repository(path: str) -> bool:
@@ -216,7 +231,7 @@ class TaskRunner(OnPolicyRunner):
                             rnd_weight=None)
         elif self.gpu_global_rank == 0:
             self._write_metrics(it, stats, evaluation, loss_dict, steps / iteration_time, collect_time, learn_time)
-            print(self._progress_line(it, stats, steps / iteration_time, evaluation, solved, now), flush=True)
+            print(self._progress_line(it, stats, steps / iteration_time, evaluation, solved), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
             self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
@@ -280,10 +295,26 @@ class TaskRunner(OnPolicyRunner):
         for tag, value in scalars.items():
             writer.add_scalar(tag, value, it)
 
+    def _eta_s(self, it: int) -> float:
+        """``eta_s`` after iteration ``it``: the evaluations due are the periodic ones (``eval.max_interval``)."""
+        left = self._end_iteration - it - 1
+        evaluations = [h["evaluation"]["seconds"] for h in self.progress.history
+                       if h["iteration"] >= self._first_iteration and "evaluation" in h]
+        due = (self._end_iteration - 1 - self._last_eval_iteration) // self.train_cfg.eval.max_interval
+        return eta_s(time.perf_counter() - self._start, evaluations, it + 1 - self._first_iteration, left,
+                     due if self.eval_env is not None else 0)
+
+    def _long_run_note(self, eta: float) -> str:
+        """What to do about a run that will take hours here."""
+        cfg = self.train_cfg
+        return (f"note: at this pace the {self._end_iteration - self._first_iteration} iterations of "
+                f"{cfg.task} take about {format_duration(eta)} more on {self.device} ({cfg.env.num_envs} envs): a GPU "
+                "(--device cuda) is far faster (docs/tasks.md: each task's measured times), or set fewer "
+                "--max-iterations")
+
     def _progress_line(self, it: int, stats: EpisodeSummary, steps_per_s: float, evaluation: EpisodeSummary | None,
-                       solved: bool, now: float) -> str:
-        done = it + 1 - self._first_iteration
-        eta_s = (now - self._start) / done * (self._end_iteration - it - 1)
+                       solved: bool) -> str:
+        eta = self._eta_s(it)
         limit = self.env.max_episode_length
         if stats.episodes:
             dt = self.train_cfg.env.sim.env_dt
@@ -298,10 +329,12 @@ class TaskRunner(OnPolicyRunner):
             episodes = f"no episode ended; {self.env.num_envs} running, {running_s:5.2f} s in on average".ljust(60)
         width = len(str(self._end_iteration))
         line = (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
-                f" | ETA {format_duration(eta_s)}")
+                f" | ETA {format_duration(eta)}")
         if evaluation is not None:
             line += (f" | eval {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
                      f"{': SOLVED' if solved else ''}")
+        if it == self._first_iteration and eta > LONG_RUN_S:
+            line += "\n" + self._long_run_note(eta)
         return line
 
     def save(self, path: str, infos: dict | None = None) -> None:
@@ -314,15 +347,18 @@ class TaskRunner(OnPolicyRunner):
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
              map_location: str | None = None) -> dict:
-        """Load a checkpoint (RunError naming the file if it is unreadable or does not fit) to continue after its
-        iteration; return its progress."""
+        """Load a checkpoint (RunError naming the file if it is unreadable or does not fit); return its progress.
+        Where ``load_cfg`` loads the iteration (the default: resuming) training continues after it with the
+        checkpoint's progress; otherwise (e.g. ``{"actor": True}``: the best policy, to export) the run's own progress
+        stays."""
         loaded = read_checkpoint(path, map_location or self.device)
         with networks_must_fit(path):
             self.alg.load(loaded, load_cfg, strict)
+        infos = loaded.get("infos") or {}
         if load_cfg is None or load_cfg.get("iteration"):
             self.current_learning_iteration = loaded["iter"] + 1
-        infos = loaded.get("infos") or {}
-        self.progress = Progress(**{f.name: infos[f.name] for f in dataclasses.fields(Progress) if f.name in infos})
+            self.progress = Progress(**{f.name: infos[f.name] for f in dataclasses.fields(Progress)
+                                        if f.name in infos})
         return infos
 
     def policy(self) -> Policy:

@@ -16,13 +16,56 @@ from pathlib import Path
 
 import torch
 
+from .. import camera
 from ..config import ConfigError
-from ..runtime import timed
+from ..runtime import free_memory_bytes, resolve_device, timed
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
 from .runner import TaskRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
+
+ENV_BYTES_PER_ENV = 8_400
+"""Host memory per env of a training process besides rsl-rl's storage (the env's buffers, its Newton scene, torch's
+copies of each step): the balance's peak resident memory in a 1-iteration ``train.py`` run on the CPU grew by 8,862
+bytes per env from 65,536 to 262,144 envs (2-core AMD EPYC, 2026-11-26), less its 490-byte storage estimate. Tasks of
+more bodies take more (a floor for them)."""
+
+
+def bytes_per_env(cfg: TrainConfig) -> dict[str, int]:
+    """Memory a training run takes per env, by where it lies: 'host', ``ENV_BYTES_PER_ENV`` (measured), and
+    'device': the camera's frames where the policy sees them (``camera.bytes_per_env``) and rsl-rl's rollout storage
+    over ``num_steps_per_env`` steps (per step the observations, the critic's own where the policy sees frames, the
+    actions with the Gaussian's mean and std, the reward, value, log-probability, return and advantage in float32,
+    the done flag in a byte), plus one mini-batch's copy of it (twice with the mirror augmentation)."""
+    env_class, camera_cfg, agent = cfg.task_spec.env_class, cfg.env.camera, cfg.agent
+    obs_bytes, frames_bytes = 4 * env_class.num_obs, 0
+    if camera_cfg.image != "none":
+        pixel_bytes = 1 if camera_cfg.image == "rgb" else 4
+        obs_bytes += (camera_cfg.channels * camera_cfg.frame_stack * camera_cfg.height_px * camera_cfg.width_px
+                      * pixel_bytes)
+        frames_bytes = camera.bytes_per_env(camera_cfg)
+    storage = agent.num_steps_per_env * (obs_bytes + 4 * 3 * env_class.num_actions + 4 * 5 + 1)
+    mirrored = agent.algorithm.symmetry and env_class.obs_mirror is not None
+    mini_batch = storage // agent.algorithm.num_mini_batches * (2 if mirrored else 1)
+    return {"host": ENV_BYTES_PER_ENV, "device": frames_bytes + storage + mini_batch}
+
+
+def check_memory(cfg: TrainConfig, device: str):
+    """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs would not fit
+    in the free memory of the host or of ``device``, before anything is allocated."""
+    per_env = bytes_per_env(cfg)
+    needs = {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
+    for where, need_per_env in needs.items():
+        need, free = cfg.env.num_envs * need_per_env, free_memory_bytes(where)
+        if need > free:
+            steps = cfg.agent.num_steps_per_env
+            frames = ", the camera's frames" if cfg.env.camera.image != "none" else ""
+            raise ConfigError(
+                f"training {cfg.env.num_envs:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
+                f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of {steps} steps "
+                f"per env); {where} has {free / 1e9:,.1f} GB free: use at most ~{free // need_per_env:,} envs "
+                "(--num-envs) or fewer --agent.num-steps-per-env")
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -44,6 +87,7 @@ class Training:
         self.run_dir, self.ranks = Path(run_dir), ranks
         start = time.perf_counter()
         env_cfg = ranks.env_config(cfg.env, torch.cuda.device_count())
+        check_memory(cfg, resolve_device(env_cfg.device))
         torch.manual_seed(env_cfg.seed)
         if cfg.torch_threads:
             torch.set_num_threads(cfg.torch_threads)
@@ -69,6 +113,8 @@ class Training:
                 save_config(self.run_dir, cfg)
         self.setup_time_s = time.perf_counter() - start
         self._interrupts = 0
+        self._finishing = False
+        """Training has ended and the run's files are being written (signals then wait)."""
 
     @property
     def solved_definition(self) -> str:
@@ -82,6 +128,10 @@ class Training:
         return self.env.max_episode_length
 
     def _on_signal(self, signum, frame):
+        if self._finishing:  # the run's files are being written: they come first, and quickly
+            if self.ranks.writes:
+                print("\nwriting the run's exports, curve and summary first", flush=True)
+            return
         self._interrupts += 1
         if self._interrupts > 1:
             raise KeyboardInterrupt
@@ -92,18 +142,23 @@ class Training:
     def run(self) -> RunSummary | None:
         """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or SIGTERM, which torchrun sends its processes,
         or, with stop_when_solved, once solved); then export the policy play.py plays (``model_best.pt``'s where an
-        evaluation ran, else the last), draw the learning curve and write
-        ``summary.json``, and return it (None in the processes that do not write)."""
+        evaluation ran, else the last), draw the learning curve and write ``summary.json``, and return it (None in
+        the processes that do not write). A signal once training has ended waits until summary.json is written."""
         previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-        trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
         try:
-            self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
+            trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
+            try:
+                self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
+            finally:
+                self._finishing = True
+                self.runner.release_graphs()
+            return self._finish(trained_before_s) if self.ranks.writes else None
         finally:
-            self.runner.release_graphs()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-        if not self.ranks.writes:
-            return None
+
+    def _finish(self, trained_before_s: float) -> RunSummary:
+        """The end of a run: exports, the learning curve, ``summary.json``."""
         progress = self.runner.progress
         self.timing_s["training"] = progress.train_time_s - trained_before_s
         with timed(self.timing_s, "export"):
@@ -153,4 +208,5 @@ class Training:
         start-up)."""
         from .curve import plot_learning_curve
 
-        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task.solved)
+        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task,
+                                   f"{self.task.name}: run {self.run_dir.name}")

@@ -13,6 +13,7 @@ of the two rows' full-step rates).
 from __future__ import annotations
 
 import itertools
+import math
 import platform
 import sys
 import time
@@ -23,7 +24,7 @@ import warp as wp
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
-from ..config import Capture, ConfigError, EnvConfig, Solver
+from ..config import Capture, ConfigError, EnvConfig, Solver, require
 from ..presets import load_preset
 from ..runtime import GraphReplay, resolve_device
 from ..scene import StageError
@@ -106,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, StageError):
         args = parse(BenchArgs, BenchArgs(), sys.argv[1:] if argv is None else argv, __doc__)
+        require(math.isfinite(args.seconds) and args.seconds > 0, f"--seconds must be finite and > 0, got "
+                                                                  f"{args.seconds}")
         sweep = args.num_envs or ([4096, 16384, 65536] if args.device.startswith("cuda") else [64, 1024, 4096])
         sweeps = itertools.product(args.solver, args.capture, args.cpu_threads, sweep, args.randomization)
         configs = [(randomized, tasks.env_config(

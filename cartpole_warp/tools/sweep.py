@@ -39,6 +39,8 @@ from pathlib import Path
 import tyro
 
 from .. import tasks
+from ..cli import clean_errors
+from ..config import ConfigError, require
 from ..rl.runs import PLAY_DIR, SUMMARY_FILE, latest_checkpoint
 
 
@@ -217,7 +219,12 @@ def table(results: list[RunResult], variants: list[str], seeds: int, task: str) 
 def main(argv: list[str] | None = None) -> int:
     args = tyro.cli(SweepArgs, args=sys.argv[1:] if argv is None else argv, description=__doc__)
     results = []
-    tasks.get(args.task)
+    with clean_errors(ConfigError):
+        tasks.get(args.task)
+        require(args.seeds and min(args.seeds) >= 0, f"--seeds must be >= 0, got {args.seeds}")
+        require(args.num_envs >= 1, f"--num-envs must be >= 1, got {args.num_envs}")
+        require(args.max_iterations is None or args.max_iterations >= 1,
+                f"--max-iterations must be >= 1, got {args.max_iterations}")
     print(seed_table_header(args.task), flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)

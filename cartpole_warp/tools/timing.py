@@ -19,8 +19,11 @@ from collections.abc import Callable
 
 import torch
 
-from ..cli import quiet_libraries
+from ..cli import clean_errors, quiet_libraries
+from ..config import ConfigError
 from ..rl.runner import TaskRunner
+from ..rl.runs import RunError
+from ..scene import StageError
 from ..train import resolve
 from ..wrappers.rsl_rl import RslRlVecEnv
 
@@ -38,7 +41,8 @@ def timed_ms(work: Callable[[], object], device: str, repeats: int) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
-    cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
+    with clean_errors(ConfigError, RunError, StageError):
+        cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
     torch.manual_seed(cfg.env.seed)
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)

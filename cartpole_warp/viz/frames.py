@@ -12,6 +12,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import newton
 import numpy as np
@@ -20,6 +21,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from ..env import BatchedEnv
 from ..files import atomic_write
+from ..runtime import warp_output
 
 BACKGROUND = (250, 250, 250)
 INK = (40, 40, 40)
@@ -192,38 +194,69 @@ class SideView:
         return image
 
 
-def camera_pictures(observations: np.ndarray, image: str) -> list[np.ndarray]:
-    """One env's camera observations over time (T, channels x frames, H, W) as pictures (T: (H, frames x W, 3) uint8),
-    its stacked frames side by side, oldest first; depth in grey, near bright, nothing black."""
-    steps, _, height, width = observations.shape
+class CameraPictures(NamedTuple):
+    """What a policy saw over time, as ``camera_pictures`` draws it."""
+
+    pictures: list[np.ndarray]
+    """(H, frames x W, 3) uint8 per time: the stacked frames side by side, oldest first."""
+    caption: list[str]
+    """What they are, which frame is oldest, how depth maps to grey."""
+    frames: int
+    """Frames per picture."""
+
+
+def camera_pictures(observations: np.ndarray, image: str) -> CameraPictures:
+    """One env's camera observations over time (T, channels x frames, H, W) as pictures, its stacked frames side by
+    side, oldest first; depth in grey, near bright, nothing black; with their caption."""
+    steps, stacked, height, width = observations.shape
+    frames = stacked // (3 if image == "rgb" else 1)
+    caption = [f"the policy's input: its last {frames} {'colour' if image == 'rgb' else 'depth'} frames "
+               f"({width}x{height}), oldest left, one env step apart"]
     if image == "rgb":
-        frames = observations.reshape(steps, -1, 3, height, width).transpose(0, 1, 3, 4, 2)
+        pictures = observations.reshape(steps, -1, 3, height, width).transpose(0, 1, 3, 4, 2)
     else:
         far_m = max(float(observations.max()), 1e-6)
         grey = np.where(observations > 0, 255 * (1 - 0.7 * observations / far_m), 0).astype(np.uint8)
-        frames = np.repeat(grey[..., None], 3, axis=-1)
-    return [np.concatenate(list(stack), axis=1) for stack in frames]
+        pictures = np.repeat(grey[..., None], 3, axis=-1)
+        caption.append(f"depth in grey: near white, {far_m:.1f} m dark grey, black: no surface")
+    return CameraPictures([np.concatenate(list(stack), axis=1) for stack in pictures], caption, frames)
 
 
-def beside(picture: Image.Image, camera: np.ndarray) -> Image.Image:
-    """``camera`` (H, W, 3) scaled to the height of ``picture`` (pixels kept square and sharp), right of it."""
+def beside(picture: Image.Image, camera: np.ndarray, caption: Sequence[str] = (), frames: int = 1) -> Image.Image:
+    """``camera`` (H, frames x W, 3) scaled to the height of ``picture`` (pixels kept square and sharp), right of it,
+    with ``caption`` above it and each of its ``frames`` labelled by its age in env steps below."""
+    font = ImageFont.load_default(size=12)
+    line_px = 15
     scale = max(1, picture.height // camera.shape[0])
-    frames = Image.fromarray(camera).resize((camera.shape[1] * scale, camera.shape[0] * scale), Image.NEAREST)
-    both = Image.new("RGB", (picture.width + frames.width, max(picture.height, frames.height)), BACKGROUND)
+    shown = Image.fromarray(camera).resize((camera.shape[1] * scale, camera.shape[0] * scale), Image.NEAREST)
+    top = line_px * len(caption)
+    width = picture.width + max(shown.width, max((int(font.getlength(line)) + 8 for line in caption), default=0))
+    both = Image.new("RGB", (width, max(picture.height, top + shown.height + (line_px if caption else 0))),
+                     BACKGROUND)
     both.paste(picture, (0, 0))
-    both.paste(frames, (picture.width, 0))
+    both.paste(shown, (picture.width, top))
+    draw = ImageDraw.Draw(both)
+    for row, line in enumerate(caption):
+        draw.text((picture.width + 4, row * line_px), line, fill=INK, font=font)
+    if caption:
+        frame_px = shown.width // frames
+        for k in range(frames):
+            age = frames - 1 - k
+            draw.text((picture.width + k * frame_px + 4, top + shown.height),
+                      "now" if age == 0 else f"{age} step{'s' if age > 1 else ''} earlier", fill=INK, font=font)
     return both
 
 
 def write_gif(path: Path, images: list[Image.Image], frame_dt_s: float,
-              cameras: list[np.ndarray] | None = None) -> Path:
+              cameras: CameraPictures | None = None) -> Path:
     """``images`` as an animated GIF, ``frame_dt_s`` apart, with the policy's ``cameras`` (``camera_pictures``, one
     per image) beside them where given. The frames share the 32-colour palette of the first (every frame has the same
     flat colours): mapping onto it is ~20x faster than a palette per frame; with camera pictures, 256 colours. Frames
     are written without Pillow's ``optimize`` (which makes each frame's unchanged pixels transparent): 25x faster
     (1.5 -> 0.06 s for 301 frames of 800x172), 14% larger."""
     if cameras is not None:
-        images = [beside(image, camera) for image, camera in zip(images, cameras)]
+        images = [beside(image, camera, cameras.caption, cameras.frames)
+                  for image, camera in zip(images, cameras.pictures)]
     palette = images[0].convert("P", palette=Image.Palette.ADAPTIVE, colors=32 if cameras is None else 256)
     images = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
     duration_ms = max(20, int(round(1000 * frame_dt_s)))
@@ -245,7 +278,8 @@ class EnvFrames(Sequence):
         self.env = env
         self._geometries: dict[tuple[int, int], Geometry] = {}
         first = self._geometry(0)
-        self.view = SideView.around(first, [first.body_transforms(env.scene.state_0)], width_px, reach=True)
+        with warp_output(env.cfg.verbose):  # the library prints nothing: Newton's kinematics module loads here
+            self.view = SideView.around(first, [first.body_transforms(env.scene.state_0)], width_px, reach=True)
 
     def _shard(self, index: int):
         return next(s for s in self.env.shards if s.start <= index < s.stop)

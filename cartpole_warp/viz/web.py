@@ -26,7 +26,7 @@ import torch
 import warp as wp
 
 from ..env import BatchedEnv
-from ..statistics import EpisodeStats, EpisodeSummary
+from ..statistics import METRIC_LABELS, EpisodeStats, EpisodeSummary
 from . import ViewerUnavailable, prepare_viewers
 from .frames import env_bounds
 
@@ -115,11 +115,12 @@ class WebViewer:
     panel (``Panel``): ``title`` (the task), plots against ``x_label``."""
 
     def __init__(self, env: BatchedEnv, host: str = "127.0.0.1", port: int = 8080, num_shown: int = 16,
-                 title: str = "cartpole_warp", x_label: str = "time (s)", paused: bool = False):
+                 title: str = "cartpole_warp", x_label: str = "time (s)", paused: bool = False,
+                 play_metric: str = "time_limit_fraction"):
         check_viser()
         from newton.viewer import ViewerViser
 
-        self.env = env
+        self.env, self.play_metric = env, play_metric
         prepare_viewers()
         self.viewer = ViewerViser(host=host, port=port, label=title, verbose=False, paused=False)
         self.url = self.viewer.url
@@ -141,13 +142,16 @@ class WebViewer:
         return f"envs 0-{self.num_shown - 1} of {self.env.num_envs:,} shown"
 
     def ended(self, summary: EpisodeSummary) -> str:
-        """How many episodes ``summary`` counts and, where the task has a time limit, the share that reached it ('' for
-        none)."""
+        """How many episodes ``summary`` counts and the task's play metric over them: for the share that reached the
+        time limit, how many of them did, where the task has one ('' for no episode)."""
         if not summary.episodes:
             return ""
         text = f"; {summary.episodes:,} episodes ended"
+        if self.play_metric != "time_limit_fraction":
+            value = getattr(summary, self.play_metric)
+            return text + f", {METRIC_LABELS[self.play_metric]} {'-' if value is None else f'{value:.3f}'}"
         if self.env.cfg.task.episode_length_s is not None:
-            text += f", {summary.time_limit_fraction:.0%} at the time limit"
+            text += f", {round(summary.time_limit_fraction * summary.episodes):,} of them at the time limit"
         return text
 
     def _frame_grid(self, up_axis, spacing: tuple[float, float, float], env_centre: np.ndarray):
@@ -184,10 +188,11 @@ class WebViewer:
 
 def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tensor], host: str, port: int,
                     num_shown: int, max_steps: int | None = None, on_ready: Callable[[str], None] = print,
-                    title: str = "cartpole_warp") -> int:
+                    title: str = "cartpole_warp", play_metric: str = "time_limit_fraction") -> int:
     """Run ``policy`` in the browser viewer at real time until Ctrl-C (or ``max_steps`` env steps); return the steps
-    run. ``on_ready(url)`` is called once the page is served; ``title``: the task."""
-    viewer = WebViewer(env, host, port, num_shown, title=title)
+    run. ``on_ready(url)`` is called once the page is served; ``title``: the task; ``play_metric``: its play metric
+    (the page shows it)."""
+    viewer = WebViewer(env, host, port, num_shown, title=title, play_metric=play_metric)
     on_ready(viewer.url)
     obs, _ = env.reset()
     steps, stats = 0, EpisodeStats(env.device, env.max_episode_length)
@@ -228,8 +233,10 @@ class TrainingView:
     """How often a paused training looks at the page."""
 
     def __init__(self, env: BatchedEnv, host: str, port: int, num_shown: int, interval_s: float = 5.0,
-                 stopping: Callable[[], bool] = lambda: False, paused: bool = False, title: str = "cartpole_warp"):
-        self.viewer = WebViewer(env, host, port, num_shown, title=title, x_label="iteration", paused=paused)
+                 stopping: Callable[[], bool] = lambda: False, paused: bool = False, title: str = "cartpole_warp",
+                 play_metric: str = "time_limit_fraction"):
+        self.viewer = WebViewer(env, host, port, num_shown, title=title, x_label="iteration", paused=paused,
+                                play_metric=play_metric)
         self.url, self.title, self.interval_s = self.viewer.url, title, interval_s
         self.stopping = stopping
         self._next_draw = 0.0
@@ -340,12 +347,13 @@ def serve_recording(path: Path, port: int) -> None:
 def main(argv: list[str] | None = None) -> int:
     """``python -m cartpole_warp.viz.web RECORDING.viser [PORT]``: play a recording in the browser."""
     args = sys.argv[1:] if argv is None else argv
-    if not args or not Path(args[0]).is_file():
-        print("usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]  (e.g. logs/.../play/cartpole.viser)",
-              file=sys.stderr)
+    port = args[1] if len(args) > 1 else "8081"
+    if not args or not Path(args[0]).is_file() or len(args) > 2 or not port.isdigit() or not 1 <= int(port) <= 65535:
+        print("usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]  (an existing recording, e.g. "
+              "logs/.../play/cartpole.viser; a PORT of 1-65535)", file=sys.stderr)
         return 2
     try:
-        serve_recording(Path(args[0]), int(args[1]) if len(args) > 1 else 8081)
+        serve_recording(Path(args[0]), int(port))
     except ViewerUnavailable as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

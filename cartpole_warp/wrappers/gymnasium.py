@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
 
 from .. import tasks
 from ..deprecation import renamed
@@ -26,21 +25,6 @@ from ..env import BatchedEnv
 
 if TYPE_CHECKING:
     import torch  # imported where used: parsing a command line needs no torch
-
-
-def observation_space(env: BatchedEnv) -> gym.spaces.Box:
-    """One env's observation space: ``env.num_obs`` unbounded floats (the task's docstring names them); with a camera
-    its frames (``env.obs_shape``): uint8 in [0, 255] (rgb) or float32 metres (depth)."""
-    if env.cfg.camera.image == "rgb":
-        return gym.spaces.Box(0, 255, env.obs_shape, np.uint8)
-    if env.cfg.camera.image == "depth":
-        return gym.spaces.Box(0.0, np.inf, env.obs_shape, np.float32)
-    return gym.spaces.Box(-np.inf, np.inf, (env.num_obs,), np.float32)
-
-
-def action_space(env: BatchedEnv) -> gym.spaces.Box:
-    """One env's action space: ``env.num_actions`` values in [-1, 1] (the env clips to it)."""
-    return gym.spaces.Box(-1.0, 1.0, (env.num_actions,), np.float32)
 
 
 def actions_tensor(actions, num_envs: int, env: BatchedEnv) -> torch.Tensor:
@@ -106,12 +90,15 @@ class TaskGymEnv(gym.Env):
 
     def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str = "cpu",
                  seed: int | None = None, render_mode: str | None = None, **overrides):
+        if "num_envs" in overrides:
+            raise ValueError(f"{task_name}'s gymnasium env is one env; for {overrides['num_envs']} use "
+                             "gym.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point')")
         self.core = tasks.make(task_name, num_envs=1, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **render_metadata(self.core)}
         self._frames = env_frames(self.core, render_mode)
-        self.observation_space = observation_space(self.core)
-        self.action_space = action_space(self.core)
+        self.observation_space = self.core.single_observation_space
+        self.action_space = self.core.single_action_space
         self._episode_ended = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -168,10 +155,9 @@ class TaskVectorEnv(VectorEnv):
         self.metadata = {**self.metadata, **render_metadata(self.core)}
         self._frames = env_frames(self.core, render_mode)
         self.num_envs = self.core.num_envs
-        self.single_observation_space = observation_space(self.core)
-        self.single_action_space = action_space(self.core)
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.single_observation_space = self.core.single_observation_space
+        self.single_action_space = self.core.single_action_space
+        self.observation_space, self.action_space = self.core.observation_space, self.core.action_space
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)

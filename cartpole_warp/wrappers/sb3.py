@@ -25,7 +25,7 @@ except ModuleNotFoundError as err:
 
 from ..deprecation import renamed
 from ..env import BatchedEnv
-from .gymnasium import action_space, actions_tensor, env_frames, observation_space, render_metadata
+from .gymnasium import actions_tensor, env_frames, render_metadata
 
 
 class TaskSb3VecEnv(VecEnv):
@@ -44,7 +44,7 @@ class TaskSb3VecEnv(VecEnv):
     def __init__(self, env: BatchedEnv, render_mode: str | None = None):
         self.env = env
         self.render_mode = render_mode
-        super().__init__(env.num_envs, observation_space(env), action_space(env))
+        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
         self.metadata = {**self.metadata, **render_metadata(env)}
         self._frames = env_frames(env, render_mode)
         self.episode_count = 0
