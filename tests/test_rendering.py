@@ -43,6 +43,7 @@ def test_record_video_around_the_single_env(env_id, tmp_path):
     assert env.metadata["render_fps"] == expected_fps(env_id) and env.metadata["render_modes"] == ["rgb_array"]
     assert expected_fps(env_id) == (60 if IDS[env_id][0] in ("cartpole-balance", "cartpole-balance-sparse",
                                                              "cartpole-balance-rgb", "cartpole-balance-depth",
+                                                             "cart-double-pole-balance-rgb",
                                                              "cart-double-pole-balance") else 50)
     env = RecordVideo(env, str(tmp_path), episode_trigger=lambda episode: True, video_length=VIDEO_STEPS)
     env.reset(seed=0)

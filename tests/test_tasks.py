@@ -29,7 +29,7 @@ def test_the_registry_finds_every_task_and_names_the_known_ones():
                              "cartpole-balance-sparse", "cartpole-swingup", "cartpole-swingup-rgb",
                              "cartpole-swingup-sparse"]
     with pytest.raises(ConfigError, match="unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
-                                          "cart-double-pole-balance, cart-three-pole-swingup, "):
+                                          "cart-double-pole-balance, cart-double-pole-balance-rgb, "):
         tasks.make("cartpole-moonwalk")
     balance, swingup, double = (tasks.make(name, num_envs=2) for name in
                                 ("cartpole-balance", "cartpole-swingup", "cart-double-pole-balance"))

@@ -346,7 +346,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
         assert "--env.sim.physics-dt" in full.stdout and "--env.sim.physics-dt" not in short.stdout
         assert ("--agent.algorithm.entropy-coef" in full.stdout) == (script == "train"), script
     train_help = run_main("train", "--help").stdout
-    assert len(train_help.splitlines()) <= 85, "train.py --help is for the common flags"
+    flag_lines = len(train_help.splitlines()) - len(tasks.names())  # a line per task beside the flags
+    assert flag_lines <= 75, "train.py --help is for the common flags"
     presets = sorted(path.stem for path in (Path(__file__).parent.parent / "configs").glob("*.yaml"))
     assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
@@ -371,7 +372,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--num-envs", "4000000", "--env.randomization.action-delay-steps", "1000"],
      "error: randomization.action_delay_steps=1000 with num_envs=4,000,000 is an action history of 4,004,000,000"),
     (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
-                                      "cart-double-pole-balance, cart-three-pole-swingup, cart-two-pole-swingup, "
+                                      "cart-double-pole-balance, cart-double-pole-balance-rgb, "
+                                      "cart-three-pole-swingup, cart-two-pole-swingup, "
                                       "cartpole-balance-depth, cartpole-balance-rgb, cartpole-balance-sparse, "
                                       "cartpole-swingup, cartpole-swingup-rgb, cartpole-swingup-sparse"),
     (["--task", "cartpole-swingup", "--env.task.reset-dist-m", "1"], "--env.task.reset-dist-m"),

@@ -21,9 +21,12 @@ import sys
 import torch
 from tensordict import TensorDict
 
-from ..cli import quiet_libraries
+from ..cli import clean_errors, quiet_libraries
+from ..config import ConfigError
 from ..rl.image_model import ImageModel
 from ..rl.runner import to_rsl_rl
+from ..rl.runs import RunError
+from ..scene import StageError
 from ..train import resolve
 
 
@@ -63,10 +66,12 @@ def time_actor(actor: ImageModel, obs: TensorDict, mini_batch: TensorDict) -> tu
 
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
-    cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
+    with clean_errors(ConfigError, RunError, StageError):
+        cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
     device, n, camera = cfg.env.device, cfg.env.num_envs, cfg.env.camera
     if not device.startswith("cuda") or camera.image == "none":
-        print("encoder timing needs a task seen by a camera (e.g. --task cartpole-balance-rgb) and --device cuda:N")
+        print("error: encoder timing needs a task seen by a camera (e.g. --task cartpole-balance-rgb) and --device "
+              "cuda:N", file=sys.stderr)
         return 2
     batch = n * cfg.agent.num_steps_per_env // cfg.agent.algorithm.num_mini_batches
     channels = camera.channels * camera.frame_stack
