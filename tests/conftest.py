@@ -59,6 +59,18 @@ def call_main(script: str, *args) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
 
 
+def collect(runner):
+    """One rollout of ``runner``'s policy into its PPO storage, and the returns (rsl-rl's loop, without the rest of
+    an iteration)."""
+    obs = runner.env.get_observations()
+    with torch.inference_mode():
+        for _ in range(runner.cfg["num_steps_per_env"]):
+            obs, rewards, dones, extras = runner.env.step(runner.alg.act(obs))
+            runner.alg.process_env_step(obs, rewards, dones, extras)
+        runner.alg.compute_returns(obs)
+    return obs
+
+
 @pytest.fixture
 def run_main():
     """``run_main(script, *args)``: ``call_main``, as a fixture."""

@@ -4,6 +4,7 @@ import copy
 
 import pytest
 import torch
+from conftest import collect
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
@@ -24,15 +25,6 @@ def runner_for(class_name, schedule="adaptive", torch_compile_mode=None, use_mix
     cfg.agent.algorithm.num_learning_epochs = 3
     torch.manual_seed(0)
     return TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=3)), cfg, None)
-
-
-def collect(runner):
-    obs = runner.env.get_observations()
-    with torch.inference_mode():
-        for _ in range(runner.cfg["num_steps_per_env"]):
-            obs, rewards, dones, extras = runner.env.step(runner.alg.act(obs))
-            runner.alg.process_env_step(obs, rewards, dones, extras)
-        runner.alg.compute_returns(obs)
 
 
 def nudge_actors(*runners):

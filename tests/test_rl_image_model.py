@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 import torch
+from conftest import collect
 from rsl_rl.models import CNNModel
 from tensordict import TensorDict
 from torch import nn
@@ -87,12 +88,7 @@ def test_the_bfloat16_update_lands_within_a_few_percent_of_the_float32_one(monke
     low.alg.actor.load_state_dict(exact.alg.actor.state_dict())
     low.alg.critic.load_state_dict(exact.alg.critic.state_dict())
     before = copy.deepcopy(exact.alg.actor.state_dict())
-    obs = exact.env.get_observations()
-    with torch.inference_mode():
-        for _ in range(exact.cfg["num_steps_per_env"]):
-            obs, rewards, dones, extras = exact.env.step(exact.alg.act(obs))
-            exact.alg.process_env_step(obs, rewards, dones, extras)
-        exact.alg.compute_returns(obs)
+    obs = collect(exact)
     low.alg.storage = copy.deepcopy(exact.alg.storage)
     with torch.inference_mode():
         features = low.alg.actor.encode("policy", obs["policy"])
