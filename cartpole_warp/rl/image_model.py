@@ -97,7 +97,8 @@ class ImageModel(CNNModel):
         self.image_shapes = {group: tuple(obs[group].shape[1:]) for group in images}
         self.image_dtypes = [obs[group].dtype for group in images]
         per_group = cnn_cfg if cnn_cfg and all(isinstance(v, dict) for v in cnn_cfg.values()) else None
-        self.blocks, blocked_cfg, shapes = {}, {}, {group: obs[group] for group in obs.keys()}  # noqa: SIM118 (a TensorDict iterates over its rows)
+        groups = obs.keys()  # a TensorDict iterates over its rows, not its keys
+        self.blocks, blocked_cfg, shapes = {}, {}, {group: obs[group] for group in groups}
         for group in images:
             cfg = per_group[group] if per_group else cnn_cfg
             c, h, w = self.image_shapes[group]
