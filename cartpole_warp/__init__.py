@@ -7,10 +7,10 @@
     obs, reward, terminated, truncated, info = env.step(actions)
 
 Tasks live in ``tasks/`` (one module each, found by the registry ``cartpole_warp.tasks``); the rest is machinery that
-knows no task: ``config.py`` (the config engine), ``scene.py`` (USD -> Newton), ``env.py`` (``BatchedEnv``),
-``kernels.py`` (its Warp kernels), ``runtime.py`` (devices, shards, graphs), ``streams.py`` (torch and Warp on CUDA),
-``wrappers/`` (rsl-rl, gymnasium, SB3), ``evaluation.py`` (policy rollouts and episode statistics), ``viz/``
-(pictures), ``rl/`` (training with rsl-rl) and ``tools/`` (benchmarks).
+knows no task, a folder per layer: ``settings/`` (the config schemas, presets and files), ``engine/`` (the stage, the
+batched env, its kernels, camera and randomization), ``evaluation/`` (episode statistics, policy rollouts,
+robustness), ``viz/`` (pictures), ``wrappers/`` (rsl-rl, gymnasium, SB3), ``rl/`` (training with rsl-rl) and
+``tools/`` (benchmarks); the programs (``train``, ``play``, ``warmup``, ``cli``) sit here.
 
 Importing the package registers every task's gymnasium ids (``cartpole_warp/Cartpole-v0``,
 ``cartpole_warp/CartpoleSwingup-v0``, ... one or more per task: ``cartpole_warp.wrappers.gymnasium.env_ids()`` lists
@@ -18,10 +18,10 @@ them). DESIGN.md (in the repository) has the layers and the task seam.
 """
 
 from . import tasks
-from .config import ConfigError, EnvConfig, SimConfig, TaskConfig
-from .deprecation import renamed
-from .env import BatchedEnv
-from .scene import StageError
+from .engine.env import BatchedEnv
+from .engine.scene import StageError
+from .settings.config import ConfigError, EnvConfig, SimConfig, TaskConfig
+from .settings.deprecation import alias_moved_modules, renamed
 from .wrappers.gymnasium import TaskGymEnv, TaskVectorEnv, register_envs
 
 
@@ -38,3 +38,15 @@ __all__ = ["BatchedEnv", "TaskGymEnv", "TaskVectorEnv", "ConfigError", "EnvConfi
 
 __getattr__ = renamed(__name__, {"CartpoleGymEnv": "TaskGymEnv", "CartpoleVectorEnv": "TaskVectorEnv"})
 """The old names (before they said what they serve), for one more release."""
+
+MOVED_MODULES = {
+    **{f"{__name__}.{name}": f"{__name__}.engine.{name}"
+       for name in ("env", "kernels", "camera", "randomization", "scene", "runtime", "streams")},
+    **{f"{__name__}.{name}": f"{__name__}.settings.{name}" for name in ("config", "agent", "presets", "files")},
+    f"{__name__}.deprecation": f"{__name__}.settings.deprecation",
+    f"{__name__}.statistics": f"{__name__}.evaluation.statistics",
+    f"{__name__}.robustness": f"{__name__}.evaluation.robustness",
+}
+"""The modules' paths before the layers became folders (old -> new), for one more release; the old
+``cartpole_warp.evaluation`` module's names are answered by the ``evaluation`` package."""
+alias_moved_modules(MOVED_MODULES)

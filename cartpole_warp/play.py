@@ -29,14 +29,14 @@ import tyro
 
 from . import tasks
 from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
-from .config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
-from .files import unwritable, write_text
+from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config
 from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_run, load_config, play_checkpoint
-from .scene import StageError
+from .settings.config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
+from .settings.files import unwritable, write_text
 
 if TYPE_CHECKING:
-    from .evaluation import Policy  # torch: imported when a run needs it
+    from .evaluation.rollouts import Policy  # torch: imported when a run needs it
 
 Agent = Literal["trained", "zero", "random"]
 Viewer = Literal["window", "viser", "none"]
@@ -100,7 +100,7 @@ class PlayArgs(Generic[TaskT]):
 
     def grid(self, joint_roles: tuple[str, ...]) -> list:
         """The --eval axes for a task with these joint roles."""
-        from .robustness import Axis
+        from .evaluation.robustness import Axis
 
         named = [(self.grid_x or f"{joint_roles[-1]}_mass_kg", self.grid_x_factors), (self.grid_y, self.grid_y_factors),
                  (self.grid_z, self.grid_z_factors)]
@@ -214,7 +214,7 @@ def play(argv: list[str]) -> int:
 
 def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) -> Policy:
     """The checkpoint's deterministic policy (exported first with --export), or the zero or random one."""
-    from .evaluation import random_policy, zero_policy
+    from .evaluation.rollouts import random_policy, zero_policy
 
     if checkpoint is None:
         print(f"policy: {args.agent}")
@@ -254,7 +254,7 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     """Each env's first episode, recorded (GIF, USD, MP4 with the video extra; for a policy that sees camera frames,
     also ``policy_view.gif``: those frames beside the side view); the statistics printed and written to
     result.json."""
-    from .evaluation import rollout, whole_episode_steps
+    from .evaluation.rollouts import rollout, whole_episode_steps
     from .viz.record import VIDEO_EXTRA, Recorder, video_available
 
     task = cfg.task_spec
@@ -317,7 +317,7 @@ def output_dir(args: PlayArgs, checkpoint: Path | None) -> Path:
 
 def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpoint: Path | None) -> int:
     """--eval: the grid's success rates, printed and written as CSV and PNG."""
-    from .robustness import evaluate_grid, format_table, plot_heatmap, write_table
+    from .evaluation.robustness import evaluate_grid, format_table, plot_heatmap, write_table
 
     axes = args.grid(cfg.task_spec.env_class.joint_roles)
     print(f"{cfg.task}: {args.grid_episodes} episodes in each of {env.num_envs // args.grid_episodes} cells "

@@ -35,14 +35,14 @@ from .cli import (
     quiet_libraries,
     with_default_value,
 )
-from .config import ConfigError, TaskT, require
-from .files import unwritable
-from .presets import presets
+from .engine.runtime import NO_CUDA, resolve_device, timed
+from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
-from .runtime import NO_CUDA, resolve_device, timed
-from .scene import StageError
+from .settings.config import ConfigError, TaskT, require
+from .settings.files import unwritable
+from .settings.presets import presets
 
 
 @dataclass

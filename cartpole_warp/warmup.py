@@ -20,8 +20,8 @@ from typing import Literal
 
 from . import tasks
 from .cli import clean_errors, parse, quiet_libraries
-from .config import ConfigError, require
-from .scene import StageError
+from .engine.scene import StageError
+from .settings.config import ConfigError, require
 
 
 @dataclass

@@ -58,7 +58,11 @@ def start(repo: Path, script: str, *args) -> tuple[subprocess.Popen, str]:
 def stop(process: subprocess.Popen) -> str:
     """Ctrl-C the process; its remaining output (it must exit with 0)."""
     process.send_signal(signal.SIGINT)
-    output = process.communicate(timeout=120)[0]
+    try:
+        output = process.communicate(timeout=120)[0]
+    except subprocess.TimeoutExpired:
+        process.kill()
+        pytest.fail(f"still running 120 s after Ctrl-C:\n{process.communicate()[0]}")
     assert process.returncode == 0, output
     return output
 
@@ -220,7 +224,7 @@ def test_a_browser_leaving_the_player_mid_transfer_prints_no_traceback(capsys):
 def test_the_pages_pause_holds_training_until_a_stop_is_requested(make, paused):
     """TrainingView (train.py --viewer viser's ``on_iteration``) returns at once while the page's Pause is unchecked;
     checked, it holds the training loop, polling the page and the stop request (Ctrl-C), until the stop comes."""
-    from cartpole_warp.statistics import EpisodeSummary
+    from cartpole_warp.evaluation.statistics import EpisodeSummary
     from cartpole_warp.viz.web import TrainingView
 
     polls = []
@@ -241,7 +245,7 @@ def test_the_pages_pause_holds_training_until_a_stop_is_requested(make, paused):
 def test_training_draws_the_page_at_most_every_interval(make, interval_s):
     """Each update of the page makes the browser render (most of a core-second without a GPU, on the training's own
     cores): TrainingView draws an iteration only ``interval_s`` after the last drawn one."""
-    from cartpole_warp.statistics import EpisodeSummary
+    from cartpole_warp.evaluation.statistics import EpisodeSummary
     from cartpole_warp.viz.web import TrainingView
 
     view = TrainingView(make(num_envs=4), "127.0.0.1", free_port(), 4, interval_s=interval_s)
@@ -265,7 +269,7 @@ def test_training_draws_the_page_at_most_every_interval(make, interval_s):
 def test_the_page_gives_the_tasks_play_metric_without_rounding_to_all(make, episode_length_s, play_metric, expected):
     """768 of 769 episodes at the time limit read as such (not '100%'); a task whose play metric is another mean (the
     swing-up's reward per step) shows that."""
-    from cartpole_warp.statistics import EpisodeStats
+    from cartpole_warp.evaluation.statistics import EpisodeStats
     from cartpole_warp.viz.web import WebViewer
 
     env = make(num_envs=4, task={"episode_length_s": episode_length_s})

@@ -9,8 +9,8 @@ import torch
 from conftest import call_main
 
 import cartpole_warp
-from cartpole_warp import camera
-from cartpole_warp.config import ConfigError
+from cartpole_warp.engine import camera
+from cartpole_warp.settings.config import ConfigError
 
 POLE_FACE_X_M = 0.12 + 0.02
 """The Isaac stage's pole (``usd/cartpole.usda``): its hinge 0.12 m beside the cart on +x, a box 0.04 m thick in x
@@ -144,8 +144,8 @@ def test_more_cameras_than_memory_holds_is_an_error_with_the_estimate_before_all
 
 
 def test_the_actor_sees_frames_and_the_critic_the_state(make):
-    from cartpole_warp.agent import RunnerConfig
     from cartpole_warp.rl.runner import to_rsl_rl
+    from cartpole_warp.settings.agent import RunnerConfig
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
     env = RslRlVecEnv(make(4, task_name="cartpole-balance-rgb"))

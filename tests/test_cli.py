@@ -6,9 +6,9 @@ import typing
 import pytest
 
 from cartpole_warp import play, train
-from cartpole_warp.agent import RunnerConfig
 from cartpole_warp.cli import ENV_ALIASES, expand_aliases
-from cartpole_warp.config import EnvConfig
+from cartpole_warp.settings.agent import RunnerConfig
+from cartpole_warp.settings.config import EnvConfig
 
 
 def test_short_flags_are_written_as_the_fields_own_flags_in_every_form():

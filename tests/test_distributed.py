@@ -11,11 +11,11 @@ import torch.distributed
 import torch.multiprocessing
 
 from cartpole_warp import tasks
-from cartpole_warp.config import ConfigError
+from cartpole_warp.evaluation.statistics import EpisodeStats
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.distributed import Ranks, joint_stop
 from cartpole_warp.rl.training import Training
-from cartpole_warp.statistics import EpisodeStats
+from cartpole_warp.settings.config import ConfigError
 
 
 def test_ranks_come_from_torchrun_variables():

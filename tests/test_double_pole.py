@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import cartpole_warp
-from cartpole_warp.config import ConfigError
+from cartpole_warp.settings.config import ConfigError
 
 TASK = "cart-double-pole-balance"
 STATES = torch.tensor([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.4, 0.3, 0.1, -0.5, -0.15, 0.8],

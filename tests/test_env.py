@@ -7,9 +7,9 @@ import pytest
 import torch
 
 import cartpole_warp
-from cartpole_warp.config import MAX_EPISODE_LENGTH
-from cartpole_warp.kernels import COMMON_ENDS
-from cartpole_warp.runtime import shard_bounds
+from cartpole_warp.engine.kernels import COMMON_ENDS
+from cartpole_warp.engine.runtime import shard_bounds
+from cartpole_warp.settings.config import MAX_EPISODE_LENGTH
 
 TASKS = cartpole_warp.tasks.names()
 SHORT_EPISODES = {"episode_length_s": 0.5}

@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from cartpole_warp.files import atomic_write
+from cartpole_warp.settings.files import atomic_write
 
 
 def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 import torch
 from pxr import Usd, UsdGeom, UsdPhysics
 
-from cartpole_warp.files import data_path
+from cartpole_warp.settings.files import data_path
 
 DURATION_S = 1.2
 PHYSICS_DT_S = 1.0 / 4000.0

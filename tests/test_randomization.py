@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import cartpole_warp
-from cartpole_warp.config import ConfigError
+from cartpole_warp.settings.config import ConfigError
 
 TASKS = cartpole_warp.tasks.names()
 RANGES = {"mass_scale": {"cart": [0.5, 2.0], "pole": [0.5, 2.0]}, "com_offset_m": {"pole": [-0.1, 0.1]},
@@ -186,8 +186,8 @@ def test_set_physical_params_checks_its_input(make, device):
 def test_robustness_grid_sets_each_cells_parameters(make):
     """The grid's envs hold their cell's factors on the stage's values (cells in the order of the axes' product,
     ``episodes`` envs each); a policy that never pushes keeps no balance pole up in any cell."""
-    from cartpole_warp.evaluation import zero_policy
-    from cartpole_warp.robustness import Axis, evaluate_grid
+    from cartpole_warp.evaluation.robustness import Axis, evaluate_grid
+    from cartpole_warp.evaluation.rollouts import zero_policy
 
     axes = [Axis("pole_mass_kg", (0.5, 2.0)), Axis("gravity_m_s2", (0.5, 1.0, 1.5))]
     env = make(2 * 3 * 4, task={"episode_length_s": 2.0})

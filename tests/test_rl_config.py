@@ -11,10 +11,10 @@ import pytest
 from rsl_rl.utils import resolve_callable
 
 from cartpole_warp import tasks
-from cartpole_warp.config import ConfigError
-from cartpole_warp.presets import load_preset, presets
 from cartpole_warp.rl.config import RunnerConfig, train_config
 from cartpole_warp.rl.runner import to_rsl_rl
+from cartpole_warp.settings.config import ConfigError
+from cartpole_warp.settings.presets import load_preset, presets
 from cartpole_warp.train import resolve
 from cartpole_warp.wrappers.rsl_rl import mirror
 

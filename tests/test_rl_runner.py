@@ -33,7 +33,7 @@ def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
 
 def test_phase_clock_times_each_phase_on_its_device(device):
     """On the CPU the host clock; on a GPU CUDA events, which time the device's work, not the host's queueing."""
-    from cartpole_warp.streams import PhaseClock
+    from cartpole_warp.engine.streams import PhaseClock
 
     if device.startswith("cuda"):
         matrix = torch.randn(4096, 4096, device=device)

@@ -4,7 +4,6 @@
 import pytest
 
 from cartpole_warp import tasks
-from cartpole_warp.config import ConfigError
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runs import (
     RunError,
@@ -14,6 +13,7 @@ from cartpole_warp.rl.runs import (
     new_run_dir,
     save_config,
 )
+from cartpole_warp.settings.config import ConfigError
 
 
 def test_run_folders_are_found_newest_first_in_their_experiment(tmp_path):

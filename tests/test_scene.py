@@ -9,8 +9,8 @@ import pytest
 from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
-from cartpole_warp.files import data_path
-from cartpole_warp.scene import JointRole, pick_joint
+from cartpole_warp.engine.scene import JointRole, pick_joint
+from cartpole_warp.settings.files import data_path
 
 
 def write_stage_with_renamed_joint(path):

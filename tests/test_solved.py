@@ -10,11 +10,11 @@ import torch
 from conftest import DEVICE
 
 from cartpole_warp import tasks
-from cartpole_warp.evaluation import FirstEpisodesRun, evaluate
+from cartpole_warp.evaluation.rollouts import FirstEpisodesRun, evaluate
+from cartpole_warp.evaluation.statistics import EpisodeSummary
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runs import BEST_CHECKPOINT, list_checkpoints, play_checkpoint
 from cartpole_warp.rl.training import Training
-from cartpole_warp.statistics import EpisodeSummary
 
 BALANCING_GAINS = [0.05, 0.1, -2.0, -0.3]
 """A linear state feedback (action per cart_pos, cart_vel, pole_angle, pole_vel) that keeps the balance task's pole

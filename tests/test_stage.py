@@ -5,7 +5,7 @@ import importlib.util
 import pytest
 from pxr import Usd, UsdGeom, UsdPhysics
 
-from cartpole_warp.files import data_path
+from cartpole_warp.settings.files import data_path
 
 STAGE = data_path("usd", "cartpole.usda")
 

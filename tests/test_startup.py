@@ -171,7 +171,7 @@ def test_newtons_modules_compile_adjoints_only_where_asked(gradients):
     code = f"""
 import warp as wp
 import cartpole_warp
-from cartpole_warp.scene import model_modules, solver_modules
+from cartpole_warp.engine.scene import model_modules, solver_modules
 env = cartpole_warp.make_env(num_envs=4, device="cpu", sim={{"gradients": {gradients}}})
 print(sorted({{m.options["enable_backward"] for m in model_modules() + solver_modules("featherstone")}}),
       wp.config.enable_backward)

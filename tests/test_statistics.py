@@ -5,7 +5,7 @@ import math
 import torch
 
 from cartpole_warp import tasks
-from cartpole_warp.statistics import EpisodeStats, EpisodeSummary
+from cartpole_warp.evaluation.statistics import EpisodeStats, EpisodeSummary
 
 
 def summary(time_limit_fraction, per_step, full_per_step=None):

@@ -2,6 +2,7 @@
 unknown one, and a task defined outside the package (one module's worth: settings, Warp functions, env class,
 ``register``) trains, plays and reaches gymnasium with no machinery file touched."""
 
+import importlib
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -12,11 +13,11 @@ import torch
 import warp as wp
 
 from cartpole_warp import tasks
-from cartpole_warp.config import ConfigError, NonNegative
-from cartpole_warp.evaluation import rollout
-from cartpole_warp.kernels import END_NONE, TaskFunctions
+from cartpole_warp.engine.kernels import END_NONE, TaskFunctions
+from cartpole_warp.evaluation.rollouts import rollout
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runner import TaskRunner
+from cartpole_warp.settings.config import ConfigError, NonNegative
 from cartpole_warp.tasks.cartpole import CartpoleConfig, CartTaskEnv
 from cartpole_warp.wrappers.gymnasium import register_envs
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
@@ -183,3 +184,21 @@ def test_the_old_names_still_work_and_say_the_new_one(module, old, new):
         assert getattr(loaded, old) is getattr(loaded, new)
     with pytest.raises(AttributeError, match="has no attribute 'CartpoleMoonwalk'"):
         loaded.CartpoleMoonwalk  # noqa: B018
+
+
+def test_a_task_module_with_a_misspelt_default_fails_at_import_naming_the_task_and_the_key(tmp_path, monkeypatch):
+    (tmp_path / "typo_task.py").write_text(
+        "import dataclasses\n"
+        "from cartpole_warp import tasks\n"
+        "tasks.register(dataclasses.replace(tasks.get('cartpole-balance'), name='typo-balance', gym_ids={},\n"
+        "    defaults={'agent': {'algorithm': {'entropy_coeff': 0.01}},\n"
+        "              'env': {'task': {'reset_pole_angel_rad': 0.1}, 'sim': {'decimation': 0}}}))\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ConfigError) as raised:
+        importlib.import_module("typo_task")
+    message = str(raised.value)
+    assert message.startswith("task 'typo-balance': defaults")
+    assert "unknown config key 'agent.algorithm.entropy_coeff'" in message
+    assert "unknown config key 'env.task.reset_pole_angel_rad'" in message
+    assert "env.sim.decimation: " in message
+    assert "typo-balance" not in tasks.names()

@@ -6,7 +6,7 @@ import functools
 import numpy as np
 import pytest
 
-from cartpole_warp.evaluation import first_episodes, zero_policy
+from cartpole_warp.evaluation.rollouts import first_episodes, zero_policy
 from cartpole_warp.viz.frames import Geometry
 from cartpole_warp.viz.record import Recorder
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import Generic
 
 from .. import tasks
-from ..agent import ActorConfig, DistributionConfig, ModelConfig, PpoConfig, RunnerConfig
-from ..config import (
+from ..settings.agent import ActorConfig, DistributionConfig, ModelConfig, PpoConfig, RunnerConfig
+from ..settings.config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
     EnvConfig,
@@ -27,7 +27,7 @@ from ..config import (
     overrides_dict,
     require,
 )
-from ..presets import RunSettings, load_preset
+from ..settings.presets import RunSettings, load_preset
 
 
 @dataclass(kw_only=True)

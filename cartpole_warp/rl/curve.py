@@ -8,8 +8,8 @@ from pathlib import Path
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from ..files import atomic_write
-from ..statistics import METRIC_LABELS
+from ..evaluation.statistics import METRIC_LABELS
+from ..settings.files import atomic_write
 from ..tasks import Task
 
 

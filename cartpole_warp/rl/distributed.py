@@ -16,7 +16,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from ..config import ConfigError, EnvConfig
+from ..settings.config import ConfigError, EnvConfig
 
 STOP_REASONS = (None, "solved", "interrupted")
 """Stop decisions by code; the all-reduce takes the largest, so an interruption anywhere wins over solved."""

@@ -25,7 +25,7 @@ from rsl_rl.modules.distribution import GaussianDistribution
 from rsl_rl.utils.utils import reduce_gradients_in_buckets
 from torch import nn
 
-from ..streams import TorchGraph
+from ..engine.streams import TorchGraph
 
 
 class SyncFreeGaussian(GaussianDistribution):

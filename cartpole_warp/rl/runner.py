@@ -29,13 +29,13 @@ from rsl_rl.utils import resolve_class, resolve_obs_groups
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
-from ..agent import RunnerConfig
-from ..deprecation import renamed
-from ..env import BatchedEnv
-from ..evaluation import FirstEpisodesRun, Policy, evaluate
-from ..files import atomic_write
-from ..statistics import EpisodeStats, EpisodeSummary
-from ..streams import PhaseClock, TorchGraph
+from ..engine.env import BatchedEnv
+from ..engine.streams import PhaseClock, TorchGraph
+from ..evaluation.rollouts import FirstEpisodesRun, Policy, evaluate
+from ..evaluation.statistics import EpisodeStats, EpisodeSummary
+from ..settings.agent import RunnerConfig
+from ..settings.deprecation import renamed
+from ..settings.files import atomic_write
 from ..wrappers.rsl_rl import RslRlVecEnv
 from ..wrappers.rsl_rl import mirror as mirror_batch
 from ..wrappers.tensordict_import import mark_for_compile

@@ -21,8 +21,8 @@ from typing import Literal
 
 import yaml
 
-from ..config import ConfigError
-from ..files import write_text
+from ..settings.config import ConfigError
+from ..settings.files import write_text
 from .config import TrainConfig, load_train_config
 
 CONFIG_FILE = "config.yaml"

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import torch
 
-from .. import camera
-from ..config import ConfigError
-from ..runtime import free_memory_bytes, resolve_device, timed
+from ..engine import camera
+from ..engine.runtime import free_memory_bytes, resolve_device, timed
+from ..settings.config import ConfigError
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ..evaluation import FirstEpisodesRun
+from ..evaluation.rollouts import FirstEpisodesRun
 from ..viz.record import Recorder, video_available
 
 VIDEO_DIR = "videos"

@@ -17,54 +17,14 @@ import dataclasses
 import importlib
 import pkgutil
 from dataclasses import dataclass, field
-from typing import Any
 
-from ..config import ConfigError, EnvConfig, from_dict, merge, overrides_dict
-from ..env import BatchedEnv
-from ..presets import load_preset
-from ..statistics import METRICS, EpisodeSummary
+from ..engine.env import BatchedEnv
+from ..evaluation.statistics import METRICS, SolvedRule
+from ..settings.config import ConfigError, EnvConfig, from_dict, merge, overrides_dict, raise_config_errors
+from ..settings.presets import load_preset, overrides_errors
 
 DEFAULT_TASK = "cartpole-balance"
 """The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""
-
-
-@dataclass(frozen=True)
-class SolvedRule:
-    """When a task counts as solved, over a set of finished episodes: those of the deterministic evaluation that
-    decides 'solved' in training (play.py's episodes), or a training iteration's (the hint that triggers one)."""
-
-    min_reward_per_step: float | None = None
-    """Mean reward per step (episode return / episode length) at least this (None: any) ..."""
-    min_time_limit_fraction: float = 0.0
-    """... and at least this fraction of the episodes reached the time limit instead of failing ..."""
-    full_episodes_only: bool = False
-    """... where True: the mean reward per step over the episodes that ran the whole time limit (at least one must
-    have)."""
-
-    def __call__(self, summary: EpisodeSummary) -> bool:
-        """Whether ``summary`` meets the rule."""
-        per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
-        if per_step is None or summary.time_limit_fraction is None:
-            return False
-        return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
-                and summary.time_limit_fraction >= self.min_time_limit_fraction)
-
-    def episode_success(self, returns: Any, lengths: Any, reached_limit: Any) -> Any:
-        """Per episode (tensors): it reached the time limit and, for a rule over full-length episodes, its reward per
-        step (``returns / lengths``) meets the minimum."""
-        if not self.full_episodes_only or self.min_reward_per_step is None:
-            return reached_limit
-        return reached_limit & (returns / lengths.clamp(min=1) >= self.min_reward_per_step)
-
-    def describe(self) -> str:
-        """The rule in words."""
-        conditions = []
-        if self.min_reward_per_step is not None:
-            over = " over full-length episodes" if self.full_episodes_only else ""
-            conditions.append(f"mean reward per step{over} >= {self.min_reward_per_step:g}")
-        if self.min_time_limit_fraction:
-            conditions.append(f">= {self.min_time_limit_fraction:.0%} of the episodes reach the time limit")
-        return " and ".join(conditions) or "any"
 
 
 @dataclass(frozen=True)
@@ -92,11 +52,13 @@ _TASKS: dict[str, Task] = {}
 
 def register(task: Task) -> Task:
     """Add ``task`` to the registry (a task module calls this once); ValueError if its name is taken or its
-    ``play_metric`` names no episode mean."""
+    ``play_metric`` names no episode mean, ConfigError naming each unknown key or bad value of its ``defaults``."""
     if task.play_metric not in METRICS:
         raise ValueError(f"task {task.name!r}: play_metric {task.play_metric!r} is not one of {', '.join(METRICS)}")
     if task.name in _TASKS and _TASKS[task.name] != task:
         raise ValueError(f"task {task.name!r} is already registered")
+    raise_config_errors(f"task {task.name!r}: defaults",
+                        overrides_errors(task.defaults, EnvConfig[task.env_class.config_class]))
     _TASKS[task.name] = task
     return task
 

@@ -9,9 +9,9 @@ from typing import Any
 
 import warp as wp
 
-from ..config import Name, NonNegative, TaskConfig
-from ..env import BatchedEnv
-from ..scene import JointRole
+from ..engine.env import BatchedEnv
+from ..engine.scene import JointRole
+from ..settings.config import Name, NonNegative, TaskConfig
 
 
 @dataclass

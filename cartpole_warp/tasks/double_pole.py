@@ -13,8 +13,8 @@ from typing import Any
 
 import warp as wp
 
-from ..config import Finite, Name, NonNegative, Positive, require
-from ..kernels import END_NONE, FIRST_TASK_END, TaskFunctions
+from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
+from ..settings.config import Finite, Name, NonNegative, Positive, require
 from . import SolvedRule, Task, register
 from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 

@@ -4,7 +4,7 @@ sees the last frames (``env.camera``), the critic the task's state (an asymmetri
 
 import dataclasses
 
-from ..config import merge
+from ..settings.config import merge
 from . import balance, double_pole, register, swingup
 
 PIXEL_AGENT = {"agent": {"algorithm": {"symmetry": False}, "actor": {"hidden_dims": [64, 64]}}}

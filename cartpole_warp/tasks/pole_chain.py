@@ -5,7 +5,7 @@ docstring."""
 
 from dataclasses import dataclass, replace
 
-from ..config import Name, merge
+from ..settings.config import Name, merge
 from . import SolvedRule, register, swingup
 
 

@@ -10,8 +10,8 @@ from typing import Any
 
 import warp as wp
 
-from ..config import Finite, NonNegative, Positive
-from ..kernels import END_NONE, TaskFunctions
+from ..engine.kernels import END_NONE, TaskFunctions
+from ..settings.config import Finite, NonNegative, Positive
 from . import SolvedRule, Task, register
 from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
 

@@ -6,7 +6,7 @@ from typing import Any
 
 import warp as wp
 
-from ..kernels import END_NONE
+from ..engine.kernels import END_NONE
 from . import SolvedRule, register, swingup
 from .cartpole import sparse_reward
 

@@ -24,10 +24,10 @@ import warp as wp
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
-from ..config import Capture, ConfigError, EnvConfig, Solver, require
-from ..presets import load_preset
-from ..runtime import GraphReplay, resolve_device
-from ..scene import StageError
+from ..engine.runtime import GraphReplay, resolve_device
+from ..engine.scene import StageError
+from ..settings.config import Capture, ConfigError, EnvConfig, Solver, require
+from ..settings.presets import load_preset
 
 
 def _rate(run_once, num_envs: int, min_seconds: float, sync) -> float:

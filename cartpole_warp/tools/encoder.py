@@ -22,11 +22,11 @@ import torch
 from tensordict import TensorDict
 
 from ..cli import clean_errors, quiet_libraries
-from ..config import ConfigError
+from ..engine.scene import StageError
 from ..rl.image_model import ImageModel
 from ..rl.runner import to_rsl_rl
 from ..rl.runs import RunError
-from ..scene import StageError
+from ..settings.config import ConfigError
 from ..train import resolve
 
 

@@ -40,8 +40,8 @@ import tyro
 
 from .. import tasks
 from ..cli import clean_errors
-from ..config import ConfigError, require
 from ..rl.runs import PLAY_DIR, SUMMARY_FILE, latest_checkpoint
+from ..settings.config import ConfigError, require
 
 
 @dataclass

@@ -20,10 +20,10 @@ from collections.abc import Callable
 import torch
 
 from ..cli import clean_errors, quiet_libraries
-from ..config import ConfigError
+from ..engine.scene import StageError
 from ..rl.runner import TaskRunner
 from ..rl.runs import RunError
-from ..scene import StageError
+from ..settings.config import ConfigError
 from ..train import resolve
 from ..wrappers.rsl_rl import RslRlVecEnv
 

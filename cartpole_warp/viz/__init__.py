@@ -1,7 +1,7 @@
 """Pictures of the env: GIF side views (``frames``), recordings of a rollout as GIF and time-sampled USD
 (``record``, Newton's ``ViewerUSD``) and Newton's interactive ``ViewerGL`` (``viewer``)."""
 
-from ..runtime import compile_without_adjoints
+from ..engine.runtime import compile_without_adjoints
 
 NEWTON_VIEWER_MODULES = ("newton._src.viewer.kernels", "newton._src.geometry.raycast", "newton._src.sim.articulation")
 """The Warp modules that Newton's viewers load (Newton 1.8): compiled here without adjoints (``prepare_viewers``)."""

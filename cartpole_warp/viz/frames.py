@@ -19,9 +19,9 @@ import numpy as np
 import warp as wp
 from PIL import Image, ImageDraw, ImageFont
 
-from ..env import BatchedEnv
-from ..files import atomic_write
-from ..runtime import warp_output
+from ..engine.env import BatchedEnv
+from ..engine.runtime import warp_output
+from ..settings.files import atomic_write
 
 BACKGROUND = (250, 250, 250)
 INK = (40, 40, 40)

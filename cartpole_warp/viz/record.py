@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 from newton.viewer import ViewerUSD
 
-from ..env import BatchedEnv
-from ..files import atomic_write
-from ..scene import Scene
+from ..engine.env import BatchedEnv
+from ..engine.scene import Scene
+from ..settings.files import atomic_write
 from . import prepare_viewers
 from .frames import Geometry, SideView, camera_pictures, write_gif
 

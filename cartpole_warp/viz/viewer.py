@@ -14,7 +14,7 @@ import newton
 import torch
 import warp as wp
 
-from ..env import BatchedEnv
+from ..engine.env import BatchedEnv
 from . import ViewerUnavailable, prepare_viewers
 from .frames import env_bounds
 

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 import warp as wp
 
-from ..env import BatchedEnv
-from ..statistics import METRIC_LABELS, EpisodeStats, EpisodeSummary
+from ..engine.env import BatchedEnv
+from ..evaluation.statistics import METRIC_LABELS, EpisodeStats, EpisodeSummary
 from . import ViewerUnavailable, prepare_viewers
 from .frames import env_bounds
 

@@ -20,8 +20,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from .. import tasks
-from ..deprecation import renamed
-from ..env import BatchedEnv
+from ..engine.env import BatchedEnv
+from ..settings.deprecation import renamed
 
 if TYPE_CHECKING:
     import torch  # imported where used: parsing a command line needs no torch

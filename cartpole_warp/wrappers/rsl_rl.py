@@ -14,7 +14,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from ..env import BatchedEnv
+from ..engine.env import BatchedEnv
 
 
 class RslRlVecEnv(VecEnv):

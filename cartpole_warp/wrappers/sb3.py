@@ -23,8 +23,8 @@ except ModuleNotFoundError as err:
     raise ModuleNotFoundError(f"cartpole_warp.wrappers.sb3 needs the sb3 extra ({err.name} is missing): "
                               "pip install 'cartpole_warp[sb3]'", name=err.name) from None
 
-from ..deprecation import renamed
-from ..env import BatchedEnv
+from ..engine.env import BatchedEnv
+from ..settings.deprecation import renamed
 from .gymnasium import actions_tensor, env_frames, render_metadata
 
 

@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 import warp as wp
 
+from ..settings.config import MAX_SEED, EnvConfig, TaskConfig
+from ..settings.files import data_path
 from . import camera, randomization
-from .config import MAX_SEED, EnvConfig, TaskConfig
-from .files import data_path
 from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
 from .randomization import Physics, add_friction
 from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output

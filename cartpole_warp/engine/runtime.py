@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
-from .config import ConfigError, check_device_name
+from ..settings.config import ConfigError, check_device_name
 
 if TYPE_CHECKING:
     from . import streams

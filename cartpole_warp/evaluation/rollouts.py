@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import torch
 
-from .env import BatchedEnv
+from ..engine.env import BatchedEnv
+from ..engine.streams import TorchGraph
 from .statistics import EpisodeStats, EpisodeSummary
-from .streams import TorchGraph
 
 NO_LIMIT_STEPS = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import warp as wp
 
-from .config import BYTES_PER_ENV, ConfigError, SimConfig
+from ..settings.config import BYTES_PER_ENV, ConfigError, SimConfig
 from .runtime import init_warp
 
 if TYPE_CHECKING:

@@ -101,10 +101,16 @@ def load_preset(preset: str, task: str | None = None, env_type: type | None = No
     except yaml.YAMLError as err:
         raise ConfigError(f"cannot parse {path}: {err}") from None
     data = overrides_dict(data, f"{path}: expected a mapping at the top level;")
-    errors = config_errors(PresetFile, merge(dataclasses.asdict(PresetFile()), data))
-    if env_type is not None and isinstance(data.get("env"), dict):
-        errors += config_errors(env_type, data["env"], key_prefix="env.")
-    raise_config_errors(f"preset {preset!r}", errors)
+    raise_config_errors(f"preset {preset!r}", overrides_errors(data, env_type))
     require(task is None or data.get("task", task) == task,
             f"preset {preset!r} is for task {data.get('task')!r}, not {task!r}")
     return data
+
+
+def overrides_errors(data: dict, env_type: type | None = None) -> list[str]:
+    """Every unknown section or key and bad value of ``data``, partial overrides of a training config (a preset's, or
+    a task's defaults), its ``env`` section checked against ``env_type`` (the task's ``EnvConfig[...]``) where given."""
+    errors = config_errors(PresetFile, merge(dataclasses.asdict(PresetFile()), data))
+    if env_type is not None and isinstance(data.get("env"), dict):
+        errors += config_errors(env_type, data["env"], key_prefix="env.")
+    return errors

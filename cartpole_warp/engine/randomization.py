@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from .config import ConfigError, RandomizationConfig
+from ..settings.config import ConfigError, RandomizationConfig
 from .scene import Scene
 
 if TYPE_CHECKING:

@@ -1,14 +1,14 @@
 """Episode statistics: the means over a set of finished episodes (``EpisodeSummary``, whose field names are the names
 used everywhere: progress history, summary.json, play's result, a task's ``play_metric``) and their sums kept on the
-device (``EpisodeStats``). Below the tasks, whose solved rules judge them; torch is imported where it is used, so the
-registry loads without it.
+device (``EpisodeStats``), and the rule that judges them (``SolvedRule``, each task's). Below the tasks; torch is
+imported where it is used, so the registry loads without it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import torch
@@ -82,3 +82,42 @@ METRIC_LABELS = {"mean_return": "mean return", "mean_episode_length": "mean epis
                  "time_limit_fraction": "episodes reaching the time limit",
                  "full_reward_per_step": "mean reward per step of full-length episodes"}
 """Each of ``METRICS`` in words."""
+
+
+@dataclass(frozen=True)
+class SolvedRule:
+    """When a task counts as solved, over a set of finished episodes: those of the deterministic evaluation that
+    decides 'solved' in training (play.py's episodes), or a training iteration's (the hint that triggers one)."""
+
+    min_reward_per_step: float | None = None
+    """Mean reward per step (episode return / episode length) at least this (None: any) ..."""
+    min_time_limit_fraction: float = 0.0
+    """... and at least this fraction of the episodes reached the time limit instead of failing ..."""
+    full_episodes_only: bool = False
+    """... where True: the mean reward per step over the episodes that ran the whole time limit (at least one must
+    have)."""
+
+    def __call__(self, summary: EpisodeSummary) -> bool:
+        """Whether ``summary`` meets the rule."""
+        per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
+        if per_step is None or summary.time_limit_fraction is None:
+            return False
+        return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
+                and summary.time_limit_fraction >= self.min_time_limit_fraction)
+
+    def episode_success(self, returns: Any, lengths: Any, reached_limit: Any) -> Any:
+        """Per episode (tensors): it reached the time limit and, for a rule over full-length episodes, its reward per
+        step (``returns / lengths``) meets the minimum."""
+        if not self.full_episodes_only or self.min_reward_per_step is None:
+            return reached_limit
+        return reached_limit & (returns / lengths.clamp(min=1) >= self.min_reward_per_step)
+
+    def describe(self) -> str:
+        """The rule in words."""
+        conditions = []
+        if self.min_reward_per_step is not None:
+            over = " over full-length episodes" if self.full_episodes_only else ""
+            conditions.append(f"mean reward per step{over} >= {self.min_reward_per_step:g}")
+        if self.min_time_limit_fraction:
+            conditions.append(f">= {self.min_time_limit_fraction:.0%} of the episodes reach the time limit")
+        return " and ".join(conditions) or "any"

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .config import CameraConfig, ConfigError
+from ..settings.config import CameraConfig, ConfigError
 from .kernels import END_DIVERGED, END_NONFINITE
 from .runtime import free_memory_bytes
 

@@ -13,7 +13,7 @@ def data_path(folder: str, name: str = "") -> Path:
     """A file shipped with the package (``folder`` is 'usd' or 'configs'): inside the installed package, or at the
     top of the repository when running from a checkout."""
     packaged = Path(str(importlib.resources.files("cartpole_warp"))) / folder
-    base = packaged if packaged.is_dir() else Path(__file__).resolve().parent.parent / folder
+    base = packaged if packaged.is_dir() else Path(__file__).resolve().parents[2] / folder
     return base / name if name else base
 
 

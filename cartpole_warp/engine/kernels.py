@@ -14,7 +14,7 @@ from typing import Any
 
 import warp as wp
 
-from .config import TaskConfig
+from ..settings.config import TaskConfig
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 

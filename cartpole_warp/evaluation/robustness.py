@@ -17,11 +17,11 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from .config import ConfigError
-from .env import BatchedEnv
-from .evaluation import Policy, first_episodes
-from .files import atomic_write
-from .tasks import SolvedRule
+from ..engine.env import BatchedEnv
+from ..settings.config import ConfigError
+from ..settings.files import atomic_write
+from .rollouts import Policy, first_episodes
+from .statistics import SolvedRule
 
 
 @dataclass(frozen=True)

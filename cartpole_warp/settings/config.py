@@ -12,6 +12,7 @@ here.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 import re
@@ -351,9 +352,15 @@ def config_errors(cls: type[Config], data: Any, key_prefix: str = "") -> list[st
     return _validated(cls, data, key_prefix)[1]
 
 
+@functools.cache
+def _adapter(cls: type[Config]) -> pydantic.TypeAdapter:
+    """pydantic's validator of ``cls``, built once per class (building it is the slow part)."""
+    return pydantic.TypeAdapter(cls)
+
+
 def _validated(cls: type[Config], data: Any, key_prefix: str) -> tuple[Config | None, list[str]]:
     try:
-        return pydantic.TypeAdapter(cls).validate_python(data), []
+        return _adapter(cls).validate_python(data), []
     except pydantic.ValidationError as err:
         return None, [_error_line(cls, error, key_prefix) for error in err.errors()]
 

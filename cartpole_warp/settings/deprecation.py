@@ -1,0 +1,71 @@
+"""Renamed public names and moved modules: the old one still works for a release, with a ``DeprecationWarning`` naming
+the new one."""
+
+import importlib
+import importlib.abc
+import importlib.util
+import sys
+import warnings
+from collections.abc import Callable
+
+
+def renamed(module: str, names: dict[str, str]) -> Callable[[str], object]:
+    """A module's ``__getattr__`` that answers each old name in ``names`` (old -> new) with the module's new one."""
+
+    def __getattr__(name: str) -> object:
+        if name not in names:
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        warnings.warn(f"{module}.{name} is now {names[name]}; the old name goes in a later release", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(sys.modules[module], names[name])
+
+    return __getattr__
+
+
+def moved_names(module: str, new_module: str) -> Callable[[str], object]:
+    """A package's ``__getattr__`` that answers a public name of the module it replaced with that name in
+    ``new_module`` (imported on first use)."""
+
+    def __getattr__(name: str) -> object:
+        if name.startswith("_"):
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        target = importlib.import_module(new_module)
+        if not hasattr(target, name):
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        warnings.warn(f"{module}.{name} is now {new_module}.{name}; the old path goes in a later release",
+                      DeprecationWarning, stacklevel=2)
+        value = getattr(target, name)
+        setattr(sys.modules[module], name, value)  # warned once: later lookups find it
+        return value
+
+    return __getattr__
+
+
+class MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """An import hook that answers each old module path (old -> new) with the module at its new path: the same module
+    object, so classes and module state are shared."""
+
+    def __init__(self, moves: dict[str, str]):
+        self.moves = moves
+
+    def find_spec(self, fullname, path=None, target=None):
+        return importlib.util.spec_from_loader(fullname, self) if fullname in self.moves else None
+
+    def create_module(self, spec):
+        new = self.moves[spec.name]
+        warnings.warn(f"module {spec.name} is now {new}; the old path goes in a later release", DeprecationWarning,
+                      stacklevel=2)  # warnings skips the import machinery's frames: this points at the import
+        module = importlib.import_module(new)
+        spec.loader_state = module.__spec__
+        return module
+
+    def exec_module(self, module):
+        """Nothing to run (the module at its new path is loaded); give it back its own spec, which the import
+        machinery replaced with the old path's."""
+        module.__spec__ = module.__spec__.loader_state
+
+
+def alias_moved_modules(moves: dict[str, str]) -> None:
+    """Make each old module path in ``moves`` import as its new one (once per process)."""
+    if not any(isinstance(finder, MovedModules) and finder.moves == moves for finder in sys.meta_path):
+        sys.meta_path.append(MovedModules(moves))

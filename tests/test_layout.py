@@ -1,0 +1,48 @@
+"""The package's folders are its layers: the modules moved out of the root still import from their old paths for a
+release (the same module, with a DeprecationWarning naming the new path), and the root keeps the programs and the
+package's face."""
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+
+import cartpole_warp
+
+OLD_PATHS = {  # the root modules of 56e07f5 -> their folders
+    "env": "engine.env", "kernels": "engine.kernels", "camera": "engine.camera",
+    "randomization": "engine.randomization", "scene": "engine.scene", "runtime": "engine.runtime",
+    "streams": "engine.streams", "config": "settings.config",
+    "agent": "settings.agent", "presets": "settings.presets", "files": "settings.files",
+    "deprecation": "settings.deprecation", "statistics": "evaluation.statistics", "robustness": "evaluation.robustness",
+}
+
+
+@pytest.mark.parametrize("old, new", OLD_PATHS.items())
+def test_an_old_module_path_imports_the_moved_module_and_says_where_it_went(monkeypatch, old, new):
+    monkeypatch.delitem(sys.modules, f"cartpole_warp.{old}", raising=False)
+    with pytest.warns(DeprecationWarning, match=f"module cartpole_warp.{old} is now cartpole_warp.{new}"):
+        loaded = importlib.import_module(f"cartpole_warp.{old}")
+    moved = importlib.import_module(f"cartpole_warp.{new}")
+    assert loaded is moved
+    assert moved.__spec__.name == moved.__name__ == f"cartpole_warp.{new}"
+
+
+def test_the_old_evaluation_module_names_answer_from_the_rollouts_module(monkeypatch):
+    from cartpole_warp.evaluation import rollouts
+
+    package = importlib.import_module("cartpole_warp.evaluation")
+    monkeypatch.delitem(vars(package), "first_episodes", raising=False)
+    with pytest.warns(DeprecationWarning, match="evaluation.first_episodes is now cartpole_warp.evaluation.rollouts"):
+        assert package.first_episodes is rollouts.first_episodes
+    with pytest.raises(AttributeError, match="has no attribute 'moonwalk'"):
+        package.moonwalk  # noqa: B018
+
+
+def test_the_root_holds_the_programs_and_the_face():
+    root = Path(cartpole_warp.__file__).parent
+    modules = sorted(p.stem for p in root.glob("*.py"))
+    assert modules == ["__init__", "cli", "play", "train", "warmup"]
+    assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == {
+        "engine", "evaluation", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
