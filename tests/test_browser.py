@@ -41,10 +41,15 @@ def port_is_free(port: int) -> bool:
     return True
 
 
+def ignore_ctrl_c():
+    """Start a server as a background job's children start (SIGINT ignored): its Ctrl-C must still end it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def start(repo: Path, script: str, *args) -> tuple[subprocess.Popen, str]:
-    """Start ``script`` with ``args``; (the process, the URL it prints) once it serves its page."""
+    """Start ``script`` with ``args`` (``ignore_ctrl_c``); (the process, the URL it prints) once it serves its page."""
     process = subprocess.Popen([sys.executable, str(repo / script), *map(str, args)], cwd=repo, text=True,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=ignore_ctrl_c)
     lines = []
     for line in process.stdout:
         lines.append(line)
@@ -189,7 +194,7 @@ def test_headless_play_records_for_the_static_player(repo, tmp_path, browser, ru
     port = free_port()
     process = subprocess.Popen([sys.executable, "-m", "cartpole_warp.viz.web",
                                 str(tmp_path / tasks.DEFAULT_TASK / "cartpole.viser"), str(port)], cwd=repo,
-                               text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                               text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=ignore_ctrl_c)
     try:
         url = re.search(r"watch it at (http://\S+)", process.stdout.readline()).group(1)
         assert url == f"http://127.0.0.1:{port}/", "the address alone plays the recording"

@@ -14,6 +14,7 @@ import contextlib
 import http.server
 import io
 import math
+import signal
 import socket
 import sys
 import time
@@ -186,6 +187,17 @@ class WebViewer:
         self.viewer.close()
 
 
+@contextlib.contextmanager
+def ctrl_c_interrupts():
+    """Ctrl-C (SIGINT) raises ``KeyboardInterrupt`` inside, also in a process started with SIGINT ignored (a
+    background job's, a pytest-xdist worker's children): the viewers end on Ctrl-C as training does."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tensor], host: str, port: int,
                     num_shown: int, max_steps: int | None = None, on_ready: Callable[[str], None] = print,
                     title: str = "cartpole_warp", play_metric: str = "time_limit_fraction") -> int:
@@ -197,7 +209,7 @@ def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tens
     obs, _ = env.reset()
     steps, stats = 0, EpisodeStats(env.device, env.max_episode_length)
     try:
-        with torch.inference_mode():
+        with torch.inference_mode(), ctrl_c_interrupts():
             while viewer.is_running() and (max_steps is None or steps < max_steps):
                 started = time.perf_counter()
                 points = {}
@@ -340,7 +352,7 @@ def serve_recording(path: Path, port: int) -> None:
 
     with PlayerServer(("127.0.0.1", port), Player) as server:
         print(f"watch it at http://127.0.0.1:{port}/ (Ctrl-C ends)", flush=True)
-        with contextlib.suppress(KeyboardInterrupt):
+        with contextlib.suppress(KeyboardInterrupt), ctrl_c_interrupts():
             server.serve_forever()
 
 
