@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             return 130 if training.runner.stop_reason == "interrupted" else 0
         report(summary, run_dir, checkpoint)  # summary.json is written: a Ctrl-C now only cuts these lines short
         if argv is None:
-            gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
+            gc.freeze()  # the interpreter's final collection of Newton's objects would delay the exit
         total = process_age_s() if argv is None else None
         phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
         print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
