@@ -58,8 +58,8 @@ class TrainArgs(Generic[TaskT]):
     checkpoint: Path | None = None
     """Continue from this checkpoint file, in its run folder (implies --resume)."""
     viewer: Literal["none", "viser"] = "none"
-    """viser: watch the training envs in a browser (the viser extra), drawn between iterations at most 1/20 of the
-    time (nothing is imported or drawn without it)."""
+    """viser: watch the training envs in a browser (the viser extra), drawn between iterations in at most 1/21 of
+    the wall time (nothing is imported or drawn without it)."""
     viewer_interval_s: float = 5.0
     """--viewer viser: seconds between the page's updates. Each update makes the browser redraw: a browser without a
     GPU, on the training's own cores, then slows training the more, the shorter this."""
