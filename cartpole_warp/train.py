@@ -58,8 +58,8 @@ class TrainArgs(Generic[TaskT]):
     checkpoint: Path | None = None
     """Continue from this checkpoint file, in its run folder (implies --resume)."""
     viewer: Literal["none", "viser"] = "none"
-    """viser: watch the training envs in a browser (the viser extra), drawn between iterations at most 1/20 of the
-    time (nothing is imported or drawn without it)."""
+    """viser: watch the training envs in a browser (the viser extra), drawn between iterations in at most 1/21 of
+    the wall time (nothing is imported or drawn without it)."""
     viewer_interval_s: float = 5.0
     """--viewer viser: seconds between the page's updates. Each update makes the browser redraw: a browser without a
     GPU, on the training's own cores, then slows training the more, the shorter this."""
@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             return 130 if training.runner.stop_reason == "interrupted" else 0
         report(summary, run_dir, checkpoint)  # summary.json is written: a Ctrl-C now only cuts these lines short
         if argv is None:
-            gc.freeze()  # the interpreter's final collection of Newton's objects would take 1-2 s more at exit
+            gc.freeze()  # the interpreter's final collection of Newton's objects would delay the exit
         total = process_age_s() if argv is None else None
         phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
         print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))

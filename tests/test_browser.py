@@ -25,7 +25,7 @@ webdriver = pytest.importorskip("selenium.webdriver", reason="needs selenium: pi
 
 INSTALL = "apt-get install -y chromium chromium-driver"
 SCREENSHOT = os.environ.get("CARTPOLE_VISER_SCREENSHOT")
-"""Where to keep the page's screenshot (the README's), if set."""
+"""Where to keep the page's screenshot (docs/play.md's, docs/images/viser_page.png), if set."""
 
 
 def port_is_free(port: int) -> bool:

@@ -1,7 +1,7 @@
-"""The promises at the edges (README, "Bad input"), each through the public API or a CLI as a user meets it: one rule
-for presets wherever they are loaded, numbers that are numbers, stage errors that name the file, the vector env's
-frames as a sequence, torchrun without GPUs, no run folder announced for a run that never started, an empty stage
-path refused, a quiet console."""
+"""The promises at the edges (docs/library.md, docs/bad_input.md), each through the public API or a CLI as a user
+meets it: one rule for presets wherever they are loaded, numbers that are numbers, stage errors that name the file,
+the vector env's frames as a sequence, torchrun without GPUs, no run folder announced for a run that never started,
+an empty stage path refused, a quiet console."""
 
 import json
 import os

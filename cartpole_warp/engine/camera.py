@@ -189,8 +189,8 @@ def check_memory(cfg: CameraConfig, num_envs: int, device: str):
 
 PASSES_PER_RENDER = 16
 """On CUDA the views of the envs that reset are drawn in passes of ``num_envs / PASSES_PER_RENDER`` views: a view
-that is skipped still costs a third of a drawn one, so one pass over every view cost 0.39 ms at 4096 envs with no
-env to draw and 1.04 ms with random actions (13% of the envs reset per step; docs/benchmarks.md)."""
+that is skipped still costs part of a drawn one, so drawing only the listed views in small passes beats one pass over
+every view when few envs reset (the measurement: docs/benchmarks.md, "Where a colour step went")."""
 
 
 class Camera:
@@ -267,7 +267,8 @@ class Camera:
     def _units(self, *arrays: wp.array) -> tuple[wp.array, ...]:
         """The stack kernels' layout of ``arrays``: frames (N, H, W) as (N, pixels), stacks (N, planes, H, W) as (N,
         planes, units), a unit a pixel, or for colour stacks whose pixel count divides by 4 a 32-bit word of four
-        pixels (moved a word a thread: 3.6x faster on an H200 than a byte a thread)."""
+        pixels (a word a thread moves four pixels per memory access where a byte a thread moves one;
+        docs/benchmarks.md has the measurement)."""
         out = []
         for a in arrays:
             if a.ndim == 3:

@@ -70,8 +70,8 @@ def warp_output(verbose: bool) -> Iterator[None]:
 
 def compile_without_adjoints(*names: str) -> None:
     """Warp's ``enable_backward`` option off on the named modules alone (imported first, so that their kernels are
-    registered): code that nothing here differentiates compiles 2-3x faster; other modules and Warp's global setting
-    keep theirs."""
+    registered): code that nothing here differentiates compiles faster without its adjoint (docs/benchmarks.md);
+    other modules and Warp's global setting keep theirs."""
     for name in names:
         module = wp.get_module(importlib.import_module(name).__name__)
         if module.options.get("enable_backward") is not False:

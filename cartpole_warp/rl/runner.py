@@ -369,9 +369,9 @@ class TaskRunner(OnPolicyRunner):
         """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' as the env gives it:
         (N, num_obs) float32, or camera frames (N, C, H, W); output 'actions' (N, num_actions), any batch size N) and
         TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's ``export_policy_to_onnx`` fixes the batch to 1, so the ONNX
-        export is torch's with a dynamic batch dimension, by its TorchScript-based exporter (``dynamo=False``: 0.1 s
-        where the dynamo exporter takes 3-4 s on 2 cores, for the same graph of a small MLP). Its progress report and
-        warnings are shown only if it fails."""
+        export is torch's with a dynamic batch dimension, by its TorchScript-based exporter (``dynamo=False``: much
+        quicker than the dynamo exporter for the same graph of a small MLP; docs/benchmarks.md). Its progress report
+        and warnings are shown only if it fails."""
         out_dir = Path(out_dir)
         report = io.StringIO()
         onnx_logger = logging.getLogger("torch.onnx")

@@ -27,9 +27,9 @@ from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_ch
 
 ENV_BYTES_PER_ENV = 8_400
 """Host memory per env of a training process besides rsl-rl's storage (the env's buffers, its Newton scene, torch's
-copies of each step): the balance's peak resident memory in a 1-iteration ``train.py`` run on the CPU grew by 8,862
-bytes per env from 65,536 to 262,144 envs (2-core AMD EPYC, 2026-11-26), less its 490-byte storage estimate. Tasks of
-more bodies take more (a floor for them)."""
+copies of each step): the growth per env of the balance's peak resident memory in a 1-iteration ``train.py`` run on
+the CPU, less its storage estimate (docs/benchmarks.md, "Training memory per env"). Tasks of more bodies take more (a
+floor for them)."""
 
 
 def bytes_per_env(cfg: TrainConfig) -> dict[str, int]:
@@ -204,8 +204,8 @@ class Training:
         return summary
 
     def plot(self) -> Path:
-        """Draw ``learning_curve.png`` from the progress history (matplotlib imported only now: 0.5 s saved at
-        start-up)."""
+        """Draw ``learning_curve.png`` from the progress history (matplotlib imported only now, so that start-up does
+        not pay for it)."""
         from .curve import plot_learning_curve
 
         return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task,

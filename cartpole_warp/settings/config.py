@@ -36,7 +36,8 @@ MAX_EPISODE_LENGTH = NO_TIME_LIMIT - 1
 MAX_NUM_ENVS = 2**24
 """The most envs one process builds."""
 BYTES_PER_ENV = 7_000
-"""Peak memory per env while building the scene (measured on the CPU with 262,144 envs: ~6.9 kB)."""
+"""Peak memory per env while building the scene: a bound rounded up from the peak measured on the CPU at 262,144
+envs (commit d3ad158)."""
 MAX_ACTION_DELAY_STEPS = 1000
 """The longest action delay (env steps) a config may ask for: each env keeps that many past actions."""
 
@@ -103,7 +104,8 @@ class SimConfig:
     """USD stage holding the robot's articulation (metres, kilograms; any up axis and prim names); None: the task's
     own stage (an empty path is refused)."""
     capture: Capture = "auto"
-    """Graph capture of the env step: 'auto' (CUDA, and CPU where measured faster: always), 'on' or 'off'."""
+    """Graph capture of the env step: 'auto' (captured on every device: replaying a graph beats launching each kernel,
+    on the CPU too; docs/benchmarks.md), 'on' or 'off'."""
     cpu_threads: NonNegativeInt = 0
     """On the CPU with featherstone, step this many shards of the envs in parallel threads (Warp runs each CPU
     kernel launch on one thread); 0: one per available core. Shards hold at least 512 envs; ignored on CUDA."""
@@ -113,7 +115,7 @@ class SimConfig:
     randomized mass) out of the observations, the rewards and the policy's normaliser."""
     gradients: Flag = False
     """Compile the adjoint (gradient) code of Newton's modules that the env loads too, to differentiate through the
-    physics with ``wp.Tape``; without it a first build compiles about 3x faster (the env never needs gradients)."""
+    physics with ``wp.Tape``; without it a first build compiles faster (the env never needs gradients)."""
 
     @property
     def env_dt(self) -> float:

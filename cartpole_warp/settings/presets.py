@@ -68,7 +68,7 @@ class RunSettings:
     eval: EvalConfig = field(default_factory=EvalConfig)
     torch_threads: NonNegativeInt = 1
     """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
-    networks are tiny, and more threads fight the env and other processes for cores (10x slower when oversubscribed)."""
+    networks are tiny, and more threads fight the env and other processes for cores (oversubscribed cores slow both)."""
 
 
 @dataclass

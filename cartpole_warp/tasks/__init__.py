@@ -39,7 +39,7 @@ class Task:
     play_metric: str
     """The ``EpisodeSummary`` mean (``statistics.METRICS``) that play.py reports first and the sweep tabulates."""
     summary: str
-    """One line for ``--help`` and the README's table."""
+    """One line for ``--help``, beside the task's name."""
     defaults: dict = field(default_factory=dict)
     """Nested overrides of the training config (``env``, ``agent`` sections) that make this task's defaults, applied
     before a preset and the flags."""

@@ -65,7 +65,7 @@ class CartThreePoleSwingupEnv(CartTwoPoleSwingupEnv):
 for env_class, words, min_reward_per_step, width, steps_per_env, gym_id in (
         (CartTwoPoleSwingupEnv, "two", 0.7, 128, 32, "CartTwoPoleSwingup"),
         (CartThreePoleSwingupEnv, "three", 0.5, 256, 16, "CartThreePoleSwingup")):
-    # thousands of iterations: an evaluation at most every 100 (25 took a third of the two-pole's training time);
+    # thousands of iterations: an evaluation at most every 100, so that evaluations stay a small part of training;
     # wider networks than the single pole's 32 x 32, with which the chains levelled off, and for two poles 32 steps
     # per env, with which every seed solved (docs/benchmarks.md)
     networks = {"hidden_dims": [width, width]}

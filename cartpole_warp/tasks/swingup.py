@@ -147,8 +147,8 @@ TASK = register(Task(
     solved=SolvedRule(min_reward_per_step=0.8, full_episodes_only=True),
     play_metric="full_reward_per_step",
     defaults={"env": {"sim": {"physics_dt": 0.01, "decimation": 2}},
-              # symmetry off: no faster on an H100, and seed 1 never solved with it on a 2-core CPU; 2 epochs: ~25%
-              # fewer iterations (docs/benchmarks.md)
+              # symmetry off: it did not help the swing-up, and a seed that solves without it did not with it; two
+              # epochs: fewer iterations to solved (docs/benchmarks.md)
               "agent": {"max_iterations": 500, "num_steps_per_env": 16,
                         "algorithm": {"entropy_coef": 0.02, "symmetry": False, "num_learning_epochs": 2},
                         "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},

@@ -12,6 +12,6 @@ class ViewerUnavailable(RuntimeError):
 
 
 def prepare_viewers() -> None:
-    """Before a Newton viewer is made: its modules compile without adjoint code (a first recording on a 2-core CPU
-    took ~35 s with them)."""
+    """Before a Newton viewer is made: its modules compile without adjoint code, which nothing here uses and which
+    makes a first recording's compile longer (docs/benchmarks.md)."""
     compile_without_adjoints(*NEWTON_VIEWER_MODULES)

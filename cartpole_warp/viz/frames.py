@@ -251,9 +251,9 @@ def write_gif(path: Path, images: list[Image.Image], frame_dt_s: float,
               cameras: CameraPictures | None = None) -> Path:
     """``images`` as an animated GIF, ``frame_dt_s`` apart, with the policy's ``cameras`` (``camera_pictures``, one
     per image) beside them where given. The frames share the 32-colour palette of the first (every frame has the same
-    flat colours): mapping onto it is ~20x faster than a palette per frame; with camera pictures, 256 colours. Frames
-    are written without Pillow's ``optimize`` (which makes each frame's unchanged pixels transparent): 25x faster
-    (1.5 -> 0.06 s for 301 frames of 800x172), 14% larger."""
+    flat colours): mapping onto one palette is cheaper than choosing a palette per frame; with camera pictures, 256
+    colours. Frames are written without Pillow's ``optimize`` (which makes each frame's unchanged pixels transparent):
+    quicker, for a slightly larger file (docs/benchmarks.md)."""
     if cameras is not None:
         images = [beside(image, camera, cameras.caption, cameras.frames)
                   for image, camera in zip(images, cameras.pictures)]

@@ -1,6 +1,6 @@
 """tensordict (which rsl-rl is built on) imported without ``torch._dynamo``: at import time tensordict marks a few
 functions for ``torch.compile`` (``torch.compiler.allow_in_graph``, ``assume_constant_result``), and each mark
-imports Dynamo (0.9 s on a 2-core CPU, ~6 s on some GPU hosts) although nothing here compiles. While tensordict
+imports Dynamo (seconds of start-up; docs/benchmarks.md) although nothing here compiles. While tensordict
 imports, those two are swapped for functions that only remember the marks (set and restored: nothing else in the
 process sees the swap); ``mark_for_compile`` hands them to Dynamo before a ``torch.compile``
 (``agent.torch_compile_mode``), as tensordict would have. Import this module before rsl-rl or tensordict."""
