@@ -31,7 +31,16 @@ from . import tasks
 from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
 from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config
-from .rl.runs import CONFIG_FILE, EXPORT_DIR, PLAY_DIR, RunError, latest_run, load_config, play_checkpoint
+from .rl.runs import (
+    CONFIG_FILE,
+    EXPORT_DIR,
+    PLAY_DIR,
+    RunError,
+    find_checkpoint,
+    latest_run,
+    load_config,
+    play_checkpoint,
+)
 from .settings.config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
 from .settings.files import unwritable, write_text
 
@@ -116,17 +125,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     if first.agent != "trained" or asks_help(argv):
         cfg = train_config(task, first.config)
     else:
-        if first.checkpoint:
-            checkpoint = Path(first.checkpoint)
-            if not checkpoint.is_file():
-                raise RunError(f"checkpoint {checkpoint} not found")
-            require(not first.run or Path(first.run).resolve() == checkpoint.parent.resolve(),
-                    f"--checkpoint {checkpoint} is not in --run {first.run}: a checkpoint plays in its own run "
-                    "folder (its config.yaml, its play/): give one of them")
-        else:
-            experiment = first.experiment_name or task
-            run = Path(first.run) if first.run else latest_run(first.log_dir, experiment, "--experiment-name")
-            checkpoint = play_checkpoint(run)
+        checkpoint = find_checkpoint(first.checkpoint, first.run, lambda: latest_run(
+            first.log_dir, first.experiment_name or task, "--experiment-name"), play_checkpoint, "--run")
         saved = checkpoint.parent / CONFIG_FILE
         require(not (saved.is_file() and first.config), f"--config conflicts with the run's saved {saved}; "
                                                          "override its fields with flags instead")
@@ -220,17 +220,15 @@ def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) 
         print(f"policy: {args.agent}")
         return (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
                 else random_policy(env.num_actions, cfg.env.seed))
-    from .rl.runner import TaskRunner, load_policy
+    from .rl.policies import deterministic, export_policy, load_actor
     from .wrappers.rsl_rl import RslRlVecEnv
 
     print(f"policy: {checkpoint}")
-    if not args.export:
-        return load_policy(RslRlVecEnv(env), cfg.agent, checkpoint)
-    runner = TaskRunner(RslRlVecEnv(env), cfg, None)
-    runner.load(str(checkpoint), load_cfg={"actor": True})
-    for path in runner.export(checkpoint.parent / EXPORT_DIR):
-        print(f"exported {path}")
-    return runner.policy()
+    actor = load_actor(RslRlVecEnv(env), cfg.agent, checkpoint)
+    if args.export:
+        for path in export_policy(actor, checkpoint.parent / EXPORT_DIR):
+            print(f"exported {path}")
+    return deterministic(actor)
 
 
 def view(args: PlayArgs, env, policy: Policy, play_metric: str) -> int:

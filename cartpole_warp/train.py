@@ -39,7 +39,7 @@ from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config
 from .rl.distributed import Ranks
-from .rl.runs import RunError, latest_checkpoint, latest_run, load_config, new_run_dir
+from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable
 from .settings.presets import presets
@@ -111,18 +111,14 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     if (first.resume or first.checkpoint) and not asks_help(argv):
         if first.config:
             raise ConfigError("--config cannot change a resumed run; override its fields with flags instead")
-        if first.checkpoint:
-            checkpoint = Path(first.checkpoint)
-            if not checkpoint.is_file():
-                raise RunError(f"checkpoint {checkpoint} not found")
-            run_dir = checkpoint.parent
-        elif first.resume == "latest":
+
+        def newest_run() -> Path:
             experiment = getattr(first, "agent.experiment_name") or tasks.get(first.task or tasks.DEFAULT_TASK).name
-            run_dir = latest_run(first.log_dir, experiment)
-        else:
-            run_dir = Path(first.resume)
-        if run_dir is not None and checkpoint is None:
-            checkpoint = latest_checkpoint(run_dir)
+            return latest_run(first.log_dir, experiment)
+
+        resume = None if first.resume in (None, "latest") else first.resume
+        checkpoint = find_checkpoint(first.checkpoint, resume, newest_run, latest_checkpoint, "--resume")
+        run_dir = checkpoint.parent
         base = load_config(run_dir)
         if first.task and first.task != base.task:
             raise ConfigError(f"--task {first.task} cannot change the task of {run_dir} ({base.task})")
@@ -143,6 +139,17 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     return cfg, run_dir, checkpoint, args
 
 
+def check_browser_viewer(args: TrainArgs) -> None:
+    """``--viewer viser``: ConfigError now, before the build, where the page could not be served."""
+    from .viz.web import ViewerUnavailable, check_viser
+
+    require(args.viser.host_problem() is None, args.viser.host_problem())
+    try:
+        check_viser()
+    except ViewerUnavailable as err:
+        raise ConfigError(str(err)) from None
+
+
 def main(argv: list[str] | None = None) -> int:
     age = process_age_s() if argv is None else None
     timing_s = {"start": age} if age is not None else {}
@@ -152,14 +159,7 @@ def main(argv: list[str] | None = None) -> int:
             ranks = Ranks.from_environment()
             cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
         if args.viewer == "viser":
-            from .viz.web import ViewerUnavailable, check_viser
-
-            require(args.viser.host_problem() is None, args.viser.host_problem())
-
-            try:
-                check_viser()
-            except ViewerUnavailable as err:
-                raise ConfigError(str(err)) from None
+            check_browser_viewer(args)
         with timed(timing_s, "imports"):
             import torch
 

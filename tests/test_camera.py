@@ -144,7 +144,7 @@ def test_more_cameras_than_memory_holds_is_an_error_with_the_estimate_before_all
 
 
 def test_the_actor_sees_frames_and_the_critic_the_state(make):
-    from cartpole_warp.rl.runner import to_rsl_rl
+    from cartpole_warp.rl.policies import to_rsl_rl
     from cartpole_warp.settings.agent import RunnerConfig
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
@@ -172,7 +172,7 @@ def train(log_dir, seed=3):
 def test_a_policy_from_pixels_trains_and_its_exports_act_like_the_checkpoint_on_frames(tmp_path, make):
     import onnxruntime
 
-    from cartpole_warp.rl.runner import load_policy
+    from cartpole_warp.rl.policies import load_policy
     from cartpole_warp.rl.runs import load_config
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 

@@ -93,7 +93,7 @@ def test_masked_reset_touches_only_ended_envs_and_keeps_final_obs(task, make, ra
     assert torch.equal(truncated, ending) and not terminated.any()
     assert torch.equal(reward, ref_reward), "the ending step is rewarded like any other"
     assert torch.equal(obs[~ending], ref_obs[~ending]), "envs that did not end must be untouched"
-    if not env.cameras:  # the state's final_obs is written for every env; camera frames only where an episode ended
+    if not env.sees_images:  # the state's final_obs is written for every env; camera frames only where an episode ended
         assert torch.equal(final[~ending], obs[~ending])
     assert torch.equal(final[ending], ref_obs[ending]), "final_obs is the observation before the reset"
     assert torch.equal(obs[ending], next_reset[ending]), "ended envs come back reset"

@@ -46,3 +46,12 @@ def test_the_root_holds_the_programs_and_the_face():
     assert modules == ["__init__", "cli", "play", "train", "warmup"]
     assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == {
         "engine", "evaluation", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
+
+
+@pytest.mark.parametrize("name", ["load_policy", "NullLogWriter"])
+def test_the_policy_functions_that_left_the_runner_answer_from_rl_policies(monkeypatch, name):
+    runner = importlib.import_module("cartpole_warp.rl.runner")
+    policies = importlib.import_module("cartpole_warp.rl.policies")
+    monkeypatch.delitem(vars(runner), name, raising=False)  # a name an earlier lookup cached
+    with pytest.warns(DeprecationWarning, match=f"rl.runner.{name} is now cartpole_warp.rl.policies.{name}"):
+        assert getattr(runner, name) is getattr(policies, name)

@@ -12,7 +12,7 @@ from rsl_rl.utils import resolve_callable
 
 from cartpole_warp import tasks
 from cartpole_warp.rl.config import RunnerConfig, train_config
-from cartpole_warp.rl.runner import to_rsl_rl
+from cartpole_warp.rl.policies import to_rsl_rl
 from cartpole_warp.settings.config import ConfigError
 from cartpole_warp.settings.presets import load_preset, presets
 from cartpole_warp.train import resolve

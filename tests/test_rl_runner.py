@@ -8,7 +8,8 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import TaskRunner, eta_s
+from cartpole_warp.rl.progress import eta_s
+from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.rl.runs import (
     RunError,
 )
@@ -57,7 +58,7 @@ def test_phase_clock_times_each_phase_on_its_device(device):
 def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path):
     """``load_policy`` (play's, no runner or optimizer) builds the actor as rsl-rl does: the same actions as the
     runner's policy for the same checkpoint, and a clear error for networks that do not fit."""
-    from cartpole_warp.rl.runner import load_policy
+    from cartpole_warp.rl.policies import load_policy
 
     cfg = train_config()
     cfg.env.num_envs = 16

@@ -269,8 +269,8 @@ def test_play_refuses_a_checkpoint_outside_the_run_it_is_given(trained, tmp_path
     played = {path: path.stat().st_mtime_ns for path in run.glob("play/*")}
     result = run_main("play", "--headless", "--run", other, "--checkpoint", run / "model_1.pt")
     assert result.returncode == 2, result.stdout + result.stderr
-    assert result.stderr == (f"error: --checkpoint {run / 'model_1.pt'} is not in --run {other}: a checkpoint plays "
-                             "in its own run folder (its config.yaml, its play/): give one of them\n")
+    assert result.stderr == (f"error: --checkpoint {run / 'model_1.pt'} is not in --run {other}: a checkpoint belongs "
+                             "to its own run folder (its config.yaml, its play/): give one of them\n")
     assert not (other / "play").exists() and {path: path.stat().st_mtime_ns for path in run.glob("play/*")} == played
 
 

@@ -324,3 +324,53 @@ def thicken(model, min_width_m: float):
     round_ = (kinds == newton.GeoType.CAPSULE) | (kinds == newton.GeoType.CYLINDER)
     scales[round_, 0] = np.maximum(scales[round_, 0], half[round_])  # radius
     model.shape_scale.assign(scales)
+
+
+class CameraObservations:
+    """The policy observes each env's last ``frame_stack`` frames (an observation source, as
+    ``observations.StateObservations``): one ``Camera`` per shard, the stacks and their final copies."""
+
+    images = True
+
+    def __init__(self, cfg: CameraConfig, num_envs: int, device: str):
+        check_memory(cfg, num_envs, device)
+        self.cfg, self.device = cfg, device
+        self.modules = [wp.get_module(__name__)]
+        """The Warp modules of its kernels (loaded with the env's)."""
+        self.cameras: list[Camera] = []
+        """Each shard's views (``attach``)."""
+
+    def attach(self, shards: list) -> None:
+        """A camera on each shard's scene."""
+        self.cameras = [Camera(shard.scene, self.cfg, self.device) for shard in shards]
+
+    def buffers(self, state_obs: wp.array, final_state_obs: wp.array) -> tuple[wp.array, wp.array]:
+        """(the observations, the final observations of ended episodes): the frame stacks (N, channels x frame_stack,
+        H, W), allocated here; the task's state stays the critic's."""
+        n, cfg = state_obs.shape[0], self.cfg
+        shape = (n, cfg.channels * cfg.frame_stack, cfg.height_px, cfg.width_px)
+        self.stacks = wp.zeros(shape, dtype=image_dtype(cfg), device=self.device)
+        self.final_stacks = wp.zeros(shape, dtype=image_dtype(cfg), device=self.device)
+        return self.stacks, self.final_stacks
+
+    def after_physics(self, shard) -> None:
+        """Render the shard's views (the frame an episode ends on, or the next one)."""
+        self.cameras[shard.index].render()
+
+    def after_step(self, shard, results) -> None:
+        """Render the views of the envs that reset, then push each stack's newest frame (``Camera.push``)."""
+        view = self.cameras[shard.index]
+        view.render_resets(results.terminated, results.truncated)
+        view.push(results.end_reason, shard.rows(self.stacks), shard.rows(self.final_stacks))
+
+    def start(self, shard, mask: wp.array) -> None:
+        """Where ``mask`` (new episodes): every frame of the stack is the episode's first."""
+        self.cameras[shard.index].start_stacks(shard.rows(mask), shard.rows(self.stacks))
+
+    def space(self, shape: tuple[int, ...]):
+        """One env's observation space: uint8 colour in [0, 255], or float32 metres (0: nothing hit)."""
+        import gymnasium
+
+        if self.cfg.image == "rgb":
+            return gymnasium.spaces.Box(0, 255, shape, np.uint8)
+        return gymnasium.spaces.Box(0.0, np.inf, shape, np.float32)

@@ -20,8 +20,9 @@ import warp as wp
 
 from ..settings.config import MAX_SEED, EnvConfig, TaskConfig
 from ..settings.files import data_path
-from . import camera, randomization
+from . import randomization
 from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
+from .observations import observations_of
 from .randomization import Physics, add_friction
 from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
@@ -98,8 +99,8 @@ class BatchedEnv(abc.ABC):
         stage = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
                  else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
         cfg.randomization.validate(self.joint_roles)
-        if cfg.camera.image != "none":
-            camera.check_memory(cfg.camera, cfg.num_envs, self.device)
+        self.observations = observations_of(cfg.camera, cfg.num_envs, self.device)
+        """What the policy observes: the task's state or camera frames (``engine.observations``)."""
         bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
         with timed(self.build_time_s, "kernels"):
             set_gradients(cfg.sim.solver, cfg.sim.gradients)
@@ -115,10 +116,9 @@ class BatchedEnv(abc.ABC):
         self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
                                self.num_envs, self.device)
         """The per-env physical parameters and their draws."""
-        self.cameras = ([camera.Camera(shard.scene, cfg.camera, self.device) for shard in self.shards]
-                        if cfg.camera.image != "none" else [])
-        """Each shard's camera views, where the policy observes images (``cfg.camera``)."""
+        self.observations.attach(self.shards)
         self._allocate()
+        self._make_views()
         with timed(self.build_time_s, "kernels"):
             self._seed(cfg.seed)
             self._reset_all()
@@ -129,9 +129,18 @@ class BatchedEnv(abc.ABC):
     def warp_modules(self) -> list[wp.Module]:
         """The Warp modules this env launches kernels of (loaded when it is built): Newton's (but mujoco-warp's and its
         camera's), the machinery's, the randomization's, the task's and the frame stacks'."""
-        cameras = [wp.get_module(camera.__name__)] if self.cfg.camera.image != "none" else []
         return [*preloadable_modules(self.cfg.sim.solver), init_rng.module, wp.get_module(randomization.__name__),
-                self._kernels.end_step.module, *cameras]
+                self._kernels.end_step.module, *self.observations.modules]
+
+    @property
+    def sees_images(self) -> bool:
+        """Whether the policy observes camera frames (then ``get_state_observations`` is the critic's state)."""
+        return self.observations.images
+
+    @property
+    def cameras(self) -> list:
+        """Each shard's camera views (empty where the policy observes the task's state)."""
+        return self.observations.cameras
 
     @property
     def scene(self) -> Scene:
@@ -139,6 +148,7 @@ class BatchedEnv(abc.ABC):
         return self.shards[0].scene
 
     def _allocate(self):
+        """The persistent Warp buffers of the batch (inputs, episode state, step results, counters, image stacks)."""
         n, dev, k = self.num_envs, self.device, self._kernels
 
         def buf(dtype, shape=n):
@@ -164,16 +174,15 @@ class BatchedEnv(abc.ABC):
         self._settings.divergence_limit = float(self.cfg.sim.divergence_limit)
         self._settings.max_episode_length = int(self.max_episode_length)
         self._shard_structs = [self._structs_of(shard) for shard in self.shards]
-        image = self.cfg.camera
-        stack_shape = (n, image.channels * image.frame_stack, image.height_px, image.width_px)
-        self._images = buf(camera.image_dtype(image), stack_shape if self.cameras else (n, 0, 0, 0))
-        self._final_images = buf(camera.image_dtype(image), stack_shape if self.cameras else (n, 0, 0, 0))
+        self._obs, self._final_obs = self.observations.buffers(self._episodes.obs, self._results.final_obs)
 
+    def _make_views(self):
+        """The torch tensors over the Warp buffers (zero-copy) that ``reset`` and ``step`` hand out or fill."""
         self.actions_buf = wp.to_torch(self._actions)
         self.state_obs_buf = wp.to_torch(self._episodes.obs)
         """(N, num_obs) the task's state observations (zero-copy): the policy's observations unless it sees images,
         else the privileged observations of an asymmetric critic."""
-        self.obs_buf = wp.to_torch(self._images) if self.cameras else self.state_obs_buf
+        self.obs_buf = wp.to_torch(self._obs)
         self.final_state_buf = wp.to_torch(self._results.final_state)
         """(N, 2 x joint roles) where the last step ended an episode, the joint state it ended at (``set_state``'s
         layout; the last sound one if the state turned non-finite or diverged), zero-copy: the robot is already
@@ -185,7 +194,7 @@ class BatchedEnv(abc.ABC):
         self._states_in_t = wp.to_torch(self._states_in)
         self._mask_in_t = wp.to_torch(self._mask_in)
         self._info_views = {
-            "final_obs": wp.to_torch(self._final_images if self.cameras else self._results.final_obs),
+            "final_obs": wp.to_torch(self._final_obs),
             "episode_return": wp.to_torch(self._results.ended_return),
             "episode_length": wp.to_torch(self._results.ended_length),
             "end_reason": wp.to_torch(self._results.end_reason),
@@ -254,23 +263,14 @@ class BatchedEnv(abc.ABC):
         robot, episodes, results = self._shard_structs[shard.index]
         self._apply_actions(shard)
         self._simulate(shard)
-        if self.cameras:
-            self.cameras[shard.index].render()
+        self.observations.after_physics(shard)
         wp.launch(self._kernels.end_step, dim=shard.num_envs,
                   inputs=[self.params, self._settings, robot, shard.rows(self._actions)],
                   outputs=[episodes, results, shard.slot(self._nonfinite_states), shard.slot(self._diverged_states)],
                   device=self.device)
-        if self.cameras:
-            view = self.cameras[shard.index]
-            view.render_resets(results.terminated, results.truncated)
-            view.push(results.end_reason, shard.rows(self._images), shard.rows(self._final_images))
+        self.observations.after_step(shard, results)
         if self.physics.drawn and self.cfg.randomization.at == "reset":
             self.physics.draw(shard, self._episodes.rng_state, self._results.end_reason)
-
-    def _first_images(self, shard: Shard, mask: wp.array):
-        """Where ``mask`` (new episodes): every frame of the image stack is the episode's first (with a camera)."""
-        if self.cameras:
-            self.cameras[shard.index].start_stacks(shard.rows(mask), shard.rows(self._images))
 
     def _seed(self, seed: int):
         for shard in self.shards:
@@ -284,7 +284,7 @@ class BatchedEnv(abc.ABC):
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
                       inputs=[shard.rows(self._all_envs), self.params, self._settings],
                       outputs=[robot, episodes], device=self.device)
-            self._first_images(shard, self._all_envs)
+            self.observations.start(shard, self._all_envs)
             if self.physics.drawn:
                 self.physics.draw(shard, self._episodes.rng_state, None)
 
@@ -353,7 +353,7 @@ class BatchedEnv(abc.ABC):
                 wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
                           inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params, self._settings],
                           outputs=[robot, episodes], device=self.device)
-                self._first_images(shard, self._mask_in)
+                self.observations.start(shard, self._mask_in)
         return self.obs_buf.clone()
 
     def physical_params(self) -> "dict[str, torch.Tensor]":
@@ -399,12 +399,7 @@ class BatchedEnv(abc.ABC):
     def single_observation_space(self) -> "gymnasium.spaces.Box":
         """One env's observations as a gymnasium space: ``num_obs`` unbounded float32 (the task's docstring names
         them), or with a camera its frames (``obs_shape``): uint8 in [0, 255] (rgb) or float32 metres (depth)."""
-        import gymnasium
-
-        if self.cfg.camera.image == "rgb":
-            return gymnasium.spaces.Box(0, 255, self.obs_shape, np.uint8)
-        low = 0.0 if self.cfg.camera.image == "depth" else -np.inf
-        return gymnasium.spaces.Box(low, np.inf, self.obs_shape, np.float32)
+        return self.observations.space(self.obs_shape)
 
     @property
     def single_action_space(self) -> "gymnasium.spaces.Box":

@@ -208,15 +208,7 @@ class Physics:
         self.sliders = [kind == newton.JointType.PRISMATIC for kind in kinds]
         """Per role: whether its joint slides (forces in N) rather than turns (torques in N m)."""
         self.bodies = role_bodies(scene)
-        for role, body in zip(roles, self.bodies, strict=True):
-            if role in cfg.com_offset_m:
-                low = cfg.com_offset_m[role][0]
-                if body.com_distance == 0.0:
-                    raise ConfigError(f"randomization.com_offset_m.{role}: the {role} body's centre of mass lies on "
-                                      "its joint, so there is no line to move it along")
-                if body.com_distance + low < 0.0:
-                    raise ConfigError(f"randomization.com_offset_m.{role}: low {low:g} would move the centre of mass "
-                                      f"past the joint (it sits {body.com_distance:g} m from it)")
+        self._check_com_offsets()
         gravity = scene.model.gravity.numpy()[0].astype(np.float64)
         self.gravity_m_s2 = float(np.linalg.norm(gravity))
         self.gravity_direction = wp.vec3(*(gravity / self.gravity_m_s2)) if self.gravity_m_s2 else wp.vec3(0.0)
@@ -232,18 +224,7 @@ class Physics:
         self.actuator_scale = wp.full(n, 1.0, dtype=float, device=device)
         self.gravity = wp.full(n, self.gravity_m_s2, dtype=float, device=device)
         self.delay = wp.zeros(n, dtype=wp.int32, device=device)
-        layout = Layout()
-        layout.bodies_per_env, layout.dofs_per_env = scene.bodies_per_env, scene.dofs_per_env
-        layout.body = wp.array([b.body for b in self.bodies], dtype=wp.int32, device=device)
-        layout.dof = wp.array([b.dof for b in self.bodies], dtype=wp.int32, device=device)
-        layout.mass = wp.array([b.mass for b in self.bodies], dtype=float, device=device)
-        layout.inertia = wp.array([b.inertia for b in self.bodies], dtype=wp.mat33, device=device)
-        layout.com = wp.array([b.com for b in self.bodies], dtype=wp.vec3, device=device)
-        layout.com_direction = wp.array([b.com_direction for b in self.bodies], dtype=wp.vec3, device=device)
-        layout.com_distance = wp.array([b.com_distance for b in self.bodies], dtype=float, device=device)
-        layout.damping = wp.array([b.damping for b in self.bodies], dtype=float, device=device)
-        layout.gravity_direction, layout.gravity = self.gravity_direction, self.gravity_m_s2
-        self._layout = layout
+        self._layout = self._make_layout(scene)
         self._ranges = self._make_ranges()
         flags = 0
         if cfg.mass_scale or cfg.com_offset_m:
@@ -257,6 +238,33 @@ class Physics:
         self.all_model_flags = (newton.ModelFlags.BODY_INERTIAL_PROPERTIES
                                 | newton.ModelFlags.JOINT_DOF_FORCE_PROPERTIES | newton.ModelFlags.MODEL_PROPERTIES)
         """Every model field ``write`` sets."""
+
+    def _check_com_offsets(self):
+        """ConfigError where a centre-of-mass offset has no line to move along or would pass the joint."""
+        for role, body in zip(self.roles, self.bodies, strict=True):
+            if role in self.cfg.com_offset_m:
+                low = self.cfg.com_offset_m[role][0]
+                if body.com_distance == 0.0:
+                    raise ConfigError(f"randomization.com_offset_m.{role}: the {role} body's centre of mass lies on "
+                                      "its joint, so there is no line to move it along")
+                if body.com_distance + low < 0.0:
+                    raise ConfigError(f"randomization.com_offset_m.{role}: low {low:g} would move the centre of mass "
+                                      f"past the joint (it sits {body.com_distance:g} m from it)")
+
+    def _make_layout(self, scene: Scene) -> Layout:
+        """Where each role's body and joint sit in the model, and their authored values."""
+        layout, dev, bodies = Layout(), self.device, self.bodies
+        layout.bodies_per_env, layout.dofs_per_env = scene.bodies_per_env, scene.dofs_per_env
+        layout.body = wp.array([b.body for b in bodies], dtype=wp.int32, device=dev)
+        layout.dof = wp.array([b.dof for b in bodies], dtype=wp.int32, device=dev)
+        layout.mass = wp.array([b.mass for b in bodies], dtype=float, device=dev)
+        layout.inertia = wp.array([b.inertia for b in bodies], dtype=wp.mat33, device=dev)
+        layout.com = wp.array([b.com for b in bodies], dtype=wp.vec3, device=dev)
+        layout.com_direction = wp.array([b.com_direction for b in bodies], dtype=wp.vec3, device=dev)
+        layout.com_distance = wp.array([b.com_distance for b in bodies], dtype=float, device=dev)
+        layout.damping = wp.array([b.damping for b in bodies], dtype=float, device=dev)
+        layout.gravity_direction, layout.gravity = self.gravity_direction, self.gravity_m_s2
+        return layout
 
     def _make_ranges(self) -> Ranges:
         cfg, dev = self.cfg, self.device

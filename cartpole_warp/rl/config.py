@@ -1,5 +1,5 @@
 """Training configuration: ``task`` names the registered task, ``agent`` is shaped like rsl-rl's own ``train_cfg``
-(``rl.runner.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
+(``rl.policies.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
 shows.
 
 The defaults are the dataclass defaults, then the task's own (``Task.defaults``). A preset (``configs/<name>.yaml``)

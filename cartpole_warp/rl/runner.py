@@ -17,63 +17,28 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 import contextlib
 import dataclasses
 import io
-import logging
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
-from rsl_rl.utils import resolve_class, resolve_obs_groups
-from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
 
 from ..engine.env import BatchedEnv
 from ..engine.streams import PhaseClock, TorchGraph
 from ..evaluation.rollouts import FirstEpisodesRun, Policy, evaluate
 from ..evaluation.statistics import EpisodeStats, EpisodeSummary
-from ..settings.agent import RunnerConfig
-from ..settings.deprecation import renamed
+from ..settings.deprecation import moved_names, renamed
 from ..settings.files import atomic_write
 from ..wrappers.rsl_rl import RslRlVecEnv
-from ..wrappers.rsl_rl import mirror as mirror_batch
 from ..wrappers.tensordict_import import mark_for_compile
 from .config import TrainConfig
 from .distributed import joint_stop
-from .image_model import ImageModel
-from .ppo import SyncFreeGaussian, SyncFreePPO
-from .runs import BEST_CHECKPOINT, Progress, RunError
-
-
-class NullLogWriter(LogWriter):
-    """Metrics writer for ``agent.logger: none``: checkpoints and summary are still written, metrics are not."""
-
-    def __init__(self, log_dir: str):
-        self.log_dir = log_dir
-
-    def add_scalar(self, tag: str, scalar_value: float, global_step: int) -> None:
-        """Drop the metric."""
-
-
-def format_duration(seconds: float) -> str:
-    seconds = int(round(seconds))
-    if seconds >= 3600:
-        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
-    return f"{seconds // 60}m{seconds % 60:02d}s" if seconds >= 60 else f"{seconds}s"
-
-
-LONG_RUN_S = 3600.0
-"""A run whose first iteration foretells more than this says so, with what makes it shorter."""
-
-
-def eta_s(elapsed_s: float, evaluation_s: list[float], iterations_done: int, iterations_left: int,
-          evaluations_left: int) -> float:
-    """Seconds to a run's end: the iterations left at the mean pace of those done (their evaluations taken out), and
-    the evaluations still due at the mean of those measured so far (none counted before the first has run)."""
-    per_iteration_s = (elapsed_s - sum(evaluation_s)) / iterations_done
-    per_evaluation_s = sum(evaluation_s) / len(evaluation_s) if evaluation_s else 0.0
-    return per_iteration_s * iterations_left + per_evaluation_s * evaluations_left
+from .policies import deterministic, export_policy, networks_must_fit, read_checkpoint, to_rsl_rl
+from .ppo import SyncFreePPO
+from .progress import ProgressLine, eta_s, metrics
+from .runs import BEST_CHECKPOINT, Progress
 
 
 def in_git_repository(path: str) -> bool:
@@ -112,6 +77,7 @@ class TaskRunner(OnPolicyRunner):
                      and torch.device(self.device).type == "cuda")
         self._rollout_graph = TorchGraph(self.device) if graphable else None
         self._rollout_input: TensorDict | None = None
+        self.progress_line = ProgressLine(cfg, env, self.device)
         self._clock = PhaseClock(self.device, phases=2)
         """Collection and learning time of each iteration, on the device."""
         self.on_iteration: Callable[[int, EpisodeSummary], None] | None = None
@@ -230,8 +196,14 @@ class TaskRunner(OnPolicyRunner):
                             learning_rate=self.alg.learning_rate, action_std=self.alg.get_policy().output_std,
                             rnd_weight=None)
         elif self.gpu_global_rank == 0:
-            self._write_metrics(it, stats, evaluation, loss_dict, steps / iteration_time, collect_time, learn_time)
-            print(self._progress_line(it, stats, steps / iteration_time, evaluation, solved), flush=True)
+            if self.logger.writer is not None:
+                scalars = metrics(stats, evaluation, loss_dict, self.alg.learning_rate,
+                                  self.alg.get_policy().output_std.mean().item(), steps / iteration_time, collect_time,
+                                  learn_time)
+                for tag, value in scalars.items():
+                    self.logger.writer.add_scalar(tag, value, it)
+            print(self.progress_line(it, self._first_iteration, self._end_iteration, stats, steps / iteration_time,
+                                     evaluation, solved, self._eta_s(it)), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
             self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
@@ -271,30 +243,6 @@ class TaskRunner(OnPolicyRunner):
         if self.run_dir is not None:
             self.save(str(self.run_dir / BEST_CHECKPOINT))
 
-    def _write_metrics(self, it: int, stats: EpisodeSummary, evaluation: EpisodeSummary | None, loss_dict: dict,
-                       steps_per_s: float, collect_time: float, learn_time: float):
-        writer = self.logger.writer
-        if writer is None:
-            return
-        scalars = {f"Loss/{name}": value for name, value in loss_dict.items()}
-        scalars.update({"Loss/learning_rate": self.alg.learning_rate,
-                        "Policy/mean_std": self.alg.get_policy().output_std.mean().item(),
-                        "Perf/total_fps": steps_per_s, "Perf/collection_time": collect_time,
-                        "Perf/learning_time": learn_time})
-        if stats.episodes:
-            scalars.update({"Train/mean_reward": stats.mean_return,
-                            "Train/mean_episode_length": stats.mean_episode_length,
-                            "Episode/reward_per_step": stats.mean_reward_per_step,
-                            "Episode/time_limit_fraction": stats.time_limit_fraction})
-        if stats.full_episodes:
-            scalars["Episode/full_reward_per_step"] = stats.full_reward_per_step
-        if evaluation is not None:
-            scalars.update({f"Eval/{name}": getattr(evaluation, name) for name in
-                            ("mean_reward_per_step", "time_limit_fraction", "full_reward_per_step", "mean_return")
-                            if getattr(evaluation, name) is not None})
-        for tag, value in scalars.items():
-            writer.add_scalar(tag, value, it)
-
     def _eta_s(self, it: int) -> float:
         """``eta_s`` after iteration ``it``: the evaluations due are the periodic ones (``eval.max_interval``)."""
         left = self._end_iteration - it - 1
@@ -303,39 +251,6 @@ class TaskRunner(OnPolicyRunner):
         due = (self._end_iteration - 1 - self._last_eval_iteration) // self.train_cfg.eval.max_interval
         return eta_s(time.perf_counter() - self._start, evaluations, it + 1 - self._first_iteration, left,
                      due if self.eval_env is not None else 0)
-
-    def _long_run_note(self, eta: float) -> str:
-        """What to do about a run that will take hours here."""
-        cfg = self.train_cfg
-        return (f"note: at this pace the {self._end_iteration - self._first_iteration} iterations of "
-                f"{cfg.task} take about {format_duration(eta)} more on {self.device} ({cfg.env.num_envs} envs): a GPU "
-                "(--device cuda) is far faster (docs/tasks.md: each task's measured times), or set fewer "
-                "--max-iterations")
-
-    def _progress_line(self, it: int, stats: EpisodeSummary, steps_per_s: float, evaluation: EpisodeSummary | None,
-                       solved: bool) -> str:
-        eta = self._eta_s(it)
-        limit = self.env.max_episode_length
-        if stats.episodes:
-            dt = self.train_cfg.env.sim.env_dt
-            full = ""
-            if self.solved_rule.full_episodes_only:  # the rule's own figure, padded so the columns stay aligned
-                full = (f" (full {stats.full_reward_per_step:5.3f})" if stats.full_episodes else "").ljust(13)
-            length = stats.mean_episode_length
-            episodes = (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {length * dt:5.2f} s "
-                        f"({length:5.0f}/{limit}) | {stats.episodes:5d} ep")
-        else:  # a policy that balances ends no episode for many iterations: say how long they have been running
-            running_s = self.env.episode_length_buf.float().mean().item() * self.train_cfg.env.sim.env_dt
-            episodes = f"no episode ended; {self.env.num_envs} running, {running_s:5.2f} s in on average".ljust(60)
-        width = len(str(self._end_iteration))
-        line = (f"it {it + 1:>{width}}/{self._end_iteration} | {episodes} | {steps_per_s / 1e3:6.1f}k steps/s"
-                f" | ETA {format_duration(eta)}")
-        if evaluation is not None:
-            line += (f" | eval {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
-                     f"{': SOLVED' if solved else ''}")
-        if it == self._first_iteration and eta > LONG_RUN_S:
-            line += "\n" + self._long_run_note(eta)
-        return line
 
     def save(self, path: str, infos: dict | None = None) -> None:
         """Write the models, optimizer, iteration and progress to ``path`` atomically."""
@@ -366,114 +281,14 @@ class TaskRunner(OnPolicyRunner):
         return deterministic(self.get_inference_policy(self.device))
 
     def export(self, out_dir: Path) -> list[Path]:
-        """Write the deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' as the env gives it:
-        (N, num_obs) float32, or camera frames (N, C, H, W); output 'actions' (N, num_actions), any batch size N) and
-        TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's ``export_policy_to_onnx`` fixes the batch to 1, so the ONNX
-        export is torch's with a dynamic batch dimension, by its TorchScript-based exporter (``dynamo=False``: much
-        quicker than the dynamo exporter for the same graph of a small MLP; docs/benchmarks.md). Its progress report
-        and warnings are shown only if it fails."""
-        out_dir = Path(out_dir)
-        report = io.StringIO()
-        onnx_logger = logging.getLogger("torch.onnx")
-        level = onnx_logger.level
-        onnx_logger.setLevel(logging.ERROR)
-        try:
-            with contextlib.redirect_stdout(report), contextlib.redirect_stderr(report), warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                policy = self.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
-                batch = {name: {0: "batch"} for name in (*policy.input_names, *policy.output_names)}
-                atomic_write(out_dir / "policy.onnx", lambda tmp: torch.onnx.export(
-                    policy, policy.get_dummy_inputs(), tmp, opset_version=18,
-                    input_names=policy.input_names, output_names=policy.output_names, dynamic_axes=batch,
-                    dynamo=False))
-                atomic_write(out_dir / "policy.pt",
-                             lambda tmp: self.export_policy_to_jit(str(Path(tmp).parent), Path(tmp).name))
-        except Exception as err:
-            raise RuntimeError(f"policy export failed: {err}\n{report.getvalue()}") from err
-        finally:
-            onnx_logger.setLevel(level)
-        return [out_dir / "policy.onnx", out_dir / "policy.pt"]
+        """The actor's exports in ``out_dir`` (``policies.export_policy``)."""
+        return export_policy(self.alg.get_policy(), out_dir)
+
+_renamed = renamed(__name__, {"CartpoleRunner": "TaskRunner"})
+_moved = moved_names(__name__, f"{__package__}.policies")
 
 
-def read_checkpoint(path: str | Path, device: str) -> dict:
-    """A checkpoint's dict on ``device``; RunError naming the file if it is unreadable or not rsl-rl's."""
-    try:
-        loaded = torch.load(path, weights_only=False, map_location=device)
-    except Exception as err:  # torch.load raises many types for truncated or foreign files
-        raise RunError(f"cannot read checkpoint {path}: {type(err).__name__}: {err}") from None
-    if not isinstance(loaded, dict) or "actor_state_dict" not in loaded or "iter" not in loaded:
-        raise RunError(f"{path} is not an rsl-rl checkpoint (no actor_state_dict / iter)")
-    return loaded
-
-
-@contextlib.contextmanager
-def networks_must_fit(path: str | Path):
-    """RunError naming ``path`` when its networks do not load into the configured ones."""
-    try:
-        yield
-    except (RuntimeError, KeyError, ValueError) as err:
-        raise RunError(f"checkpoint {path} does not match the configured networks "
-                       f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
-
-
-def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
-    """The deterministic policy of ``checkpoint``'s actor, built as rsl-rl's PPO builds its actor (its own
-    ``resolve_class`` and ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing
-    needs no ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` (seconds) when it is made."""
-    cfg = to_rsl_rl(agent, images=env.images)
-    actor_class, actor_cfg = resolve_class(cfg["actor"])
-    obs = env.get_observations()
-    with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
-        groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
-    actor = actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
-    with networks_must_fit(checkpoint):
-        actor.load_state_dict(read_checkpoint(checkpoint, env.device)["actor_state_dict"])
-    return deterministic(actor.eval())
-
-
-def deterministic(actor: torch.nn.Module) -> Policy:
-    """``actor`` (rsl-rl's ``MLPModel`` in eval mode: the Gaussian's mean) as a policy of observation tensors."""
-
-    def act(obs: torch.Tensor) -> torch.Tensor:
-        return actor(TensorDict({"policy": obs}, batch_size=[obs.shape[0]]))
-
-    return act
-
-
-def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -> dict:
-    """rsl-rl's ``train_cfg`` dict of ``agent``: class names added (this package's as ``module:name`` of the classes
-    themselves), our own fields left out; ``mirror``: the task has a mirror (``symmetry`` applies); ``images``: the
-    policy observes camera frames (a CNN actor, ``ImageModel``, on the 'policy' group; the critic an MLP on the
-    task's state, the 'critic' group: an asymmetric actor-critic)."""
-    cfg = dataclasses.asdict(agent)
-    cnn = cfg["actor"].pop("cnn")
-    for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph"):
-        del cfg[key]
-    del cfg["algorithm"]["symmetry"]
-    if agent.algorithm.symmetry and mirror:
-        cfg["algorithm"]["symmetry_cfg"] = {"use_data_augmentation": True,
-                                            "data_augmentation_func": _path(mirror_batch)}
-    cfg["actor"]["class_name"] = "MLPModel"
-    cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
-    if agent.algorithm.class_name == "SyncFreePPO":
-        cfg["algorithm"]["class_name"] = _path(SyncFreePPO)
-        cfg["algorithm"]["cuda_graph"] = agent.cuda_graph
-        cfg["actor"]["distribution_cfg"]["class_name"] = _path(SyncFreeGaussian)
-    cfg["critic"]["class_name"] = "MLPModel"
-    cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
-    if images:
-        cfg["actor"] |= {"class_name": _path(ImageModel), "precision": cnn.pop("precision"), "cnn_cfg": cnn}
-        cfg["obs_groups"]["critic"] = ["critic"]
-    if agent.logger == "wandb":
-        cfg["logger"] = {"class_name": "WandbLogWriter", "project_name": agent.wandb_project}
-    elif agent.logger == "none":
-        cfg["logger"] = {"class_name": _path(NullLogWriter)}
-    return cfg
-
-
-def _path(obj) -> str:
-    """``module:name``, as rsl-rl's ``resolve_callable`` finds a class or function."""
-    return f"{obj.__module__}:{obj.__qualname__}"
-
-__getattr__ = renamed(__name__, {"CartpoleRunner": "TaskRunner"})
-"""The old names (before they said what they serve), for one more release."""
+def __getattr__(name: str) -> object:
+    """The old names (``CartpoleRunner``) and the policy functions that lived here (``load_policy``, ``to_rsl_rl``,
+    ...: now in ``rl.policies``), for one more release."""
+    return _renamed(name) if name == "CartpoleRunner" else _moved(name)

@@ -15,6 +15,7 @@ import importlib.metadata
 import json
 import platform
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -78,6 +79,22 @@ def play_checkpoint(run_dir: Path) -> Path:
     """The checkpoint play.py loads from a run: its best (``model_best.pt``) where it has one, else its latest."""
     best = Path(run_dir) / BEST_CHECKPOINT
     return best if best.is_file() else latest_checkpoint(run_dir)
+
+
+def find_checkpoint(checkpoint: str | Path | None, run: str | Path | None, newest_run: Callable[[], Path],
+                    pick: Callable[[Path], Path], run_flag: str) -> Path:
+    """The checkpoint a program starts from: ``checkpoint`` where given (it must exist, and lie in ``run`` where that
+    is given too: the program's ``run_flag``), else ``pick``'s of ``run`` or, without one, of ``newest_run()`` (the
+    program's ``latest_run``)."""
+    if checkpoint:
+        path = Path(checkpoint)
+        if not path.is_file():
+            raise RunError(f"checkpoint {path} not found")
+        if run and Path(run).resolve() != path.parent.resolve():
+            raise ConfigError(f"--checkpoint {path} is not in {run_flag} {run}: a checkpoint belongs to its own run "
+                              "folder (its config.yaml, its play/): give one of them")
+        return path
+    return pick(Path(run) if run else newest_run())
 
 
 def latest_run(log_dir: str | Path, experiment: str, experiment_flag: str = "--agent.experiment-name") -> Path:

@@ -40,7 +40,7 @@ def bytes_per_env(cfg: TrainConfig) -> dict[str, int]:
     the done flag in a byte), plus one mini-batch's copy of it (twice with the mirror augmentation)."""
     env_class, camera_cfg, agent = cfg.task_spec.env_class, cfg.env.camera, cfg.agent
     obs_bytes, frames_bytes = 4 * env_class.num_obs, 0
-    if camera_cfg.image != "none":
+    if camera_cfg.enabled:
         pixel_bytes = 1 if camera_cfg.image == "rgb" else 4
         obs_bytes += (camera_cfg.channels * camera_cfg.frame_stack * camera_cfg.height_px * camera_cfg.width_px
                       * pixel_bytes)
@@ -60,7 +60,7 @@ def check_memory(cfg: TrainConfig, device: str):
         need, free = cfg.env.num_envs * need_per_env, free_memory_bytes(where)
         if need > free:
             steps = cfg.agent.num_steps_per_env
-            frames = ", the camera's frames" if cfg.env.camera.image != "none" else ""
+            frames = ", the camera's frames" if cfg.env.camera.enabled else ""
             raise ConfigError(
                 f"training {cfg.env.num_envs:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
                 f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of {steps} steps "

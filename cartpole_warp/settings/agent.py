@@ -1,5 +1,5 @@
 """rsl-rl's training settings as dataclasses, shaped like its ``train_cfg`` (the ``agent`` section of a training config
-and of a preset): the runner, PPO, the actor and critic networks. ``rl.runner.to_rsl_rl`` turns them into rsl-rl's
+and of a preset): the runner, PPO, the actor and critic networks. ``rl.policies.to_rsl_rl`` turns them into rsl-rl's
 dict; the preset loader checks a preset's ``agent`` section against them, so an unknown key is refused.
 """
 

@@ -156,6 +156,11 @@ class CameraConfig:
     the stage's). 0: the stage's sizes."""
 
     @property
+    def enabled(self) -> bool:
+        """Whether the policy sees camera frames (``image`` not 'none'): the one test of it."""
+        return self.image != "none"
+
+    @property
     def channels(self) -> int:
         """Channels of one frame."""
         return 3 if self.image == "rgb" else 1

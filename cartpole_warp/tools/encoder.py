@@ -24,7 +24,7 @@ from tensordict import TensorDict
 from ..cli import clean_errors, quiet_libraries
 from ..engine.scene import StageError
 from ..rl.image_model import ImageModel
-from ..rl.runner import to_rsl_rl
+from ..rl.policies import to_rsl_rl
 from ..rl.runs import RunError
 from ..settings.config import ConfigError
 from ..train import resolve
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     with clean_errors(ConfigError, RunError, StageError):
         cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
     device, n, camera = cfg.env.device, cfg.env.num_envs, cfg.env.camera
-    if not device.startswith("cuda") or camera.image == "none":
+    if not device.startswith("cuda") or not camera.enabled:
         print("error: encoder timing needs a task seen by a camera (e.g. --task cartpole-balance-rgb) and --device "
               "cuda:N", file=sys.stderr)
         return 2

@@ -85,7 +85,7 @@ class Recorder:
         frames and ``policy_view``, its camera's; ``kwargs``: the other arguments (``video_length``, ``viser``,
         ``name``, ``usd``)."""
         camera = ((lambda: env.obs_buf[0].to("cpu", copy=True).numpy(), env.cfg.camera.image)
-                  if env.cameras and policy_view else None)
+                  if env.sees_images and policy_view else None)
 
         def final_state() -> np.ndarray | None:
             ended = bool(env.terminated_buf[0] | env.truncated_buf[0])

@@ -35,7 +35,7 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = env.max_episode_length
         self.device = env.device
         self.cfg = env.cfg
-        self.images = bool(env.cameras)
+        self.images = env.sees_images
         """The policy observes camera frames (and the critic the task's state)."""
         self.obs_mirror, self.action_mirror = (
             torch.tensor(signs, dtype=torch.float32, device=env.device) if signs is not None and not self.images

@@ -1,0 +1,156 @@
+"""Policies outside the training loop: rsl-rl's ``train_cfg`` dict of the agent's settings (``to_rsl_rl``), checkpoints
+read with clear errors, the actor of a checkpoint and its deterministic policy (``load_actor``, ``load_policy``: no
+``OnPolicyRunner``, no optimizer), and the exports of an actor (``export_policy``: ONNX and TorchScript)."""
+
+from __future__ import annotations
+
+from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
+import contextlib
+import dataclasses
+import io
+import logging
+import warnings
+from pathlib import Path
+
+import torch
+from rsl_rl.utils import resolve_class, resolve_obs_groups
+from rsl_rl.utils.log_writer import LogWriter
+from tensordict import TensorDict
+
+from ..evaluation.rollouts import Policy
+from ..settings.agent import RunnerConfig
+from ..settings.files import atomic_write
+from ..wrappers.rsl_rl import RslRlVecEnv
+from ..wrappers.rsl_rl import mirror as mirror_batch
+from .image_model import ImageModel
+from .ppo import SyncFreeGaussian, SyncFreePPO
+from .runs import RunError
+
+ONNX_FILE, JIT_FILE = "policy.onnx", "policy.pt"
+"""The exports' file names (in a run's ``exported/``)."""
+
+
+class NullLogWriter(LogWriter):
+    """Metrics writer for ``agent.logger: none``: checkpoints and summary are still written, metrics are not."""
+
+    def __init__(self, log_dir: str):
+        self.log_dir = log_dir
+
+    def add_scalar(self, tag: str, scalar_value: float, global_step: int) -> None:
+        """Drop the metric."""
+
+
+def read_checkpoint(path: str | Path, device: str) -> dict:
+    """A checkpoint's dict on ``device``; RunError naming the file if it is unreadable or not rsl-rl's."""
+    try:
+        loaded = torch.load(path, weights_only=False, map_location=device)
+    except Exception as err:  # torch.load raises many types for truncated or foreign files
+        raise RunError(f"cannot read checkpoint {path}: {type(err).__name__}: {err}") from None
+    if not isinstance(loaded, dict) or "actor_state_dict" not in loaded or "iter" not in loaded:
+        raise RunError(f"{path} is not an rsl-rl checkpoint (no actor_state_dict / iter)")
+    return loaded
+
+
+@contextlib.contextmanager
+def networks_must_fit(path: str | Path):
+    """RunError naming ``path`` when its networks do not load into the configured ones."""
+    try:
+        yield
+    except (RuntimeError, KeyError, ValueError) as err:
+        raise RunError(f"checkpoint {path} does not match the configured networks "
+                       f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
+
+
+def load_actor(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> torch.nn.Module:
+    """``checkpoint``'s actor in eval mode, built as rsl-rl's PPO builds its actor (its own ``resolve_class`` and
+    ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing and exporting need no
+    ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` when it is made."""
+    cfg = to_rsl_rl(agent, images=env.images)
+    actor_class, actor_cfg = resolve_class(cfg["actor"])
+    obs = env.get_observations()
+    with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
+        groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
+    actor = actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
+    with networks_must_fit(checkpoint):
+        actor.load_state_dict(read_checkpoint(checkpoint, env.device)["actor_state_dict"])
+    return actor.eval()
+
+
+def load_policy(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> Policy:
+    """The deterministic policy of ``checkpoint``'s actor (``load_actor``)."""
+    return deterministic(load_actor(env, agent, checkpoint))
+
+
+def deterministic(actor: torch.nn.Module) -> Policy:
+    """``actor`` (rsl-rl's ``MLPModel`` in eval mode: the Gaussian's mean) as a policy of observation tensors."""
+
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        return actor(TensorDict({"policy": obs}, batch_size=[obs.shape[0]]))
+
+    return act
+
+
+def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -> dict:
+    """rsl-rl's ``train_cfg`` dict of ``agent``: class names added (this package's as ``module:name`` of the classes
+    themselves), our own fields left out; ``mirror``: the task has a mirror (``symmetry`` applies); ``images``: the
+    policy observes camera frames (a CNN actor, ``ImageModel``, on the 'policy' group; the critic an MLP on the
+    task's state, the 'critic' group: an asymmetric actor-critic)."""
+    cfg = dataclasses.asdict(agent)
+    cnn = cfg["actor"].pop("cnn")
+    for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph"):
+        del cfg[key]
+    del cfg["algorithm"]["symmetry"]
+    if agent.algorithm.symmetry and mirror:
+        cfg["algorithm"]["symmetry_cfg"] = {"use_data_augmentation": True,
+                                            "data_augmentation_func": _path(mirror_batch)}
+    cfg["actor"]["class_name"] = "MLPModel"
+    cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
+    if agent.algorithm.class_name == "SyncFreePPO":
+        cfg["algorithm"]["class_name"] = _path(SyncFreePPO)
+        cfg["algorithm"]["cuda_graph"] = agent.cuda_graph
+        cfg["actor"]["distribution_cfg"]["class_name"] = _path(SyncFreeGaussian)
+    cfg["critic"]["class_name"] = "MLPModel"
+    cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
+    if images:
+        cfg["actor"] |= {"class_name": _path(ImageModel), "precision": cnn.pop("precision"), "cnn_cfg": cnn}
+        cfg["obs_groups"]["critic"] = ["critic"]
+    if agent.logger == "wandb":
+        cfg["logger"] = {"class_name": "WandbLogWriter", "project_name": agent.wandb_project}
+    elif agent.logger == "none":
+        cfg["logger"] = {"class_name": _path(NullLogWriter)}
+    return cfg
+
+
+def export_policy(actor: torch.nn.Module, out_dir: Path) -> list[Path]:
+    """Write ``actor``'s deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' as the env
+    gives it: (N, num_obs) float32, or camera frames (N, C, H, W); output 'actions' (N, num_actions), any batch size
+    N) and TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's ``export_policy_to_onnx`` fixes the batch to 1, so the
+    ONNX export is torch's with a dynamic batch dimension, by its TorchScript-based exporter (``dynamo=False``: the
+    dynamo exporter is far slower for the same graph of a small network; docs/benchmarks.md). Its progress report
+    and warnings are shown only if it fails."""
+    out_dir = Path(out_dir)
+    report = io.StringIO()
+    onnx_logger = logging.getLogger("torch.onnx")
+    level = onnx_logger.level
+    onnx_logger.setLevel(logging.ERROR)
+    try:
+        with contextlib.redirect_stdout(report), contextlib.redirect_stderr(report), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            policy = actor.as_onnx(verbose=False).to("cpu").eval()
+            batch = {name: {0: "batch"} for name in (*policy.input_names, *policy.output_names)}
+            atomic_write(out_dir / ONNX_FILE, lambda tmp: torch.onnx.export(
+                policy, policy.get_dummy_inputs(), tmp, opset_version=18, input_names=policy.input_names,
+                output_names=policy.output_names, dynamic_axes=batch, dynamo=False))
+            atomic_write(out_dir / JIT_FILE, lambda tmp: torch.jit.script(actor.as_jit().to("cpu")).save(tmp))
+    except Exception as err:
+        raise RuntimeError(f"policy export failed: {err}\n{report.getvalue()}") from err
+    finally:
+        onnx_logger.setLevel(level)
+    return [out_dir / ONNX_FILE, out_dir / JIT_FILE]
+
+
+def _path(obj) -> str:
+    """``module:name``, as rsl-rl's ``resolve_callable`` finds a class or function."""
+    return f"{obj.__module__}:{obj.__qualname__}"
