@@ -155,7 +155,7 @@ def grid_envs(args: PlayArgs, cfg: TrainConfig, argv: list[str]):
     require(args.headless, "--eval runs headless: add --headless")
     require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
     require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
-    require(cfg.env.task.episode_length_s is not None, "--eval needs a time limit (task.episode_length_s)")
+    require(cfg.env.task.has_time_limit, "--eval needs a time limit (task.episode_length_s)")
     envs = peek(argv, num_envs=None, **{"env.num_envs": None})
     require(envs.num_envs is None and getattr(envs, "env.num_envs") is None,
             "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs")
@@ -199,10 +199,7 @@ def play(argv: list[str]) -> int:
             from .viz.viewer import check_viewer
 
             check_viewer()
-        import torch
-
-        if cfg.torch_threads:
-            torch.set_num_threads(cfg.torch_threads)
+        cfg.apply_torch_threads()
         env = cfg.task_spec.env_class(cfg.env)
         policy = load_policy(args, cfg, env, checkpoint)
         if args.eval:
@@ -262,7 +259,7 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     print(f"playing {env.num_envs} envs for {steps} env steps ...", flush=True)
     stats = rollout(env, policy, steps, on_step=with_progress(recorder, steps), seed=cfg.env.seed)
     pictures = recorder.close()
-    at_limit = cfg.env.task.episode_length_s is not None and steps >= env.max_episode_length
+    at_limit = cfg.env.task.has_time_limit and steps >= env.max_episode_length
     limit = f"the {cfg.env.task.episode_length_s:g} s time limit" if at_limit else f"the {steps}-step cap"
     whole = steps >= whole_episode_steps(env)
     solved = task.solved(stats) if whole else None  # episodes cut by --steps say nothing of the task's rule

@@ -424,7 +424,7 @@ class BatchedEnv(abc.ABC):
 
     def __repr__(self) -> str:
         limit = (f"time limit {self.max_episode_length} steps ({self.cfg.task.episode_length_s:g} s)"
-                 if self.cfg.task.episode_length_s is not None else "no time limit")
+                 if self.cfg.task.has_time_limit else "no time limit")
         return (f"<{type(self).__name__}: {self.num_envs} envs on {self.device}, observations "
                 f"{self.single_observation_space}, actions {self.single_action_space}, {limit}, "
                 f"env step {self.env_dt:g} s>")

@@ -127,7 +127,7 @@ def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int]
 
 def whole_episode_steps(env: BatchedEnv) -> int:
     """Env steps that play every first episode to its end: the time limit, or NO_LIMIT_STEPS without one."""
-    return env.max_episode_length if env.cfg.task.episode_length_s is not None else NO_LIMIT_STEPS
+    return env.max_episode_length if env.cfg.task.has_time_limit else NO_LIMIT_STEPS
 
 
 def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:

@@ -89,8 +89,7 @@ class Training:
         env_cfg = ranks.env_config(cfg.env, torch.cuda.device_count())
         check_memory(cfg, resolve_device(env_cfg.device))
         torch.manual_seed(env_cfg.seed)
-        if cfg.torch_threads:
-            torch.set_num_threads(cfg.torch_threads)
+        cfg.apply_torch_threads()
         self.task = cfg.task_spec
         self.env = RslRlVecEnv(self.task.env_class(env_cfg))
         self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
@@ -170,7 +169,7 @@ class Training:
             self.plot()
         last = next((h for h in reversed(progress.history) if h["episodes"]), {})
         evaluated = next((h for h in reversed(progress.history) if "evaluation" in h), None)
-        has_limit = self.cfg.env.task.episode_length_s is not None
+        has_limit = self.cfg.env.task.has_time_limit
         summary = RunSummary(
             status=self.runner.stop_reason or "completed",
             iterations=progress.iterations,

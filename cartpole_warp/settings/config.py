@@ -241,6 +241,11 @@ class TaskConfig:
     episode_length_s: Positive | None = 10.0
     """Time limit (s) after which an episode is truncated; None for none."""
 
+    @property
+    def has_time_limit(self) -> bool:
+        """Whether episodes are truncated at ``episode_length_s``."""
+        return self.episode_length_s is not None
+
     def validate(self, env: EnvConfig) -> None:
         """ConfigError for values of this task that do not fit together (its fields' own ranges are checked by their
         types); nothing to check by default."""
@@ -273,7 +278,7 @@ class EnvConfig(Generic[TaskT]):
     @property
     def max_episode_length(self) -> int:
         """Time limit in env steps (``NO_TIME_LIMIT`` when there is none)."""
-        if self.task.episode_length_s is None:
+        if not self.task.has_time_limit:
             return NO_TIME_LIMIT
         return max(1, math.ceil(self.task.episode_length_s / self.sim.env_dt - 1e-9))
 

@@ -70,6 +70,13 @@ class RunSettings:
     """CPU threads for torch (torch.set_num_threads); 0 keeps torch's default. 1 is fastest on small CPUs: the
     networks are tiny, and more threads fight the env and other processes for cores (oversubscribed cores slow both)."""
 
+    def apply_torch_threads(self) -> None:
+        """Set torch's CPU threads to ``torch_threads`` (0: leave torch's default)."""
+        if self.torch_threads:
+            import torch
+
+            torch.set_num_threads(self.torch_threads)
+
 
 @dataclass
 class PresetFile(RunSettings):

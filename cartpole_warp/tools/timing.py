@@ -44,8 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     with clean_errors(ConfigError, RunError, StageError):
         cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
     torch.manual_seed(cfg.env.seed)
-    if cfg.torch_threads:
-        torch.set_num_threads(cfg.torch_threads)
+    cfg.apply_torch_threads()
     env = RslRlVecEnv(cfg.task_spec.env_class(cfg.env))
     runner = TaskRunner(env, cfg, None)
     device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg

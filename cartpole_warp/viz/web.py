@@ -151,7 +151,7 @@ class WebViewer:
         if self.play_metric != "time_limit_fraction":
             value = getattr(summary, self.play_metric)
             return text + f", {METRIC_LABELS[self.play_metric]} {'-' if value is None else f'{value:.3f}'}"
-        if self.env.cfg.task.episode_length_s is not None:
+        if self.env.cfg.task.has_time_limit:
             text += f", {round(summary.time_limit_fraction * summary.episodes):,} of them at the time limit"
         return text
 
