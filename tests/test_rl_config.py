@@ -153,3 +153,15 @@ def test_runner_config_is_rsl_rl_train_cfg():
     assert (isaac_lab.num_steps_per_env, isaac_lab.algorithm.num_learning_epochs, isaac_lab.algorithm.num_mini_batches,
             isaac_lab.algorithm.desired_kl) == (16, 5, 4, 0.01)
     assert isaac_lab.actor.activation == isaac_lab.critic.activation == "elu", "Isaac Lab's cartpole uses ELU"
+
+
+def test_a_run_reads_its_preset_file_once(tmp_path, monkeypatch):
+    import yaml
+
+    preset = tmp_path / "p.yaml"
+    preset.write_text("env:\n  num_envs: 64\nagent:\n  max_iterations: 7\n")
+    reads = []
+    safe_load = yaml.safe_load
+    monkeypatch.setattr(yaml, "safe_load", lambda text: reads.append(text) or safe_load(text))
+    resolve(["--config", str(preset), "--log-dir", str(tmp_path)])
+    assert len(reads) == 1, "one read, its env section and the rest taken from it"

@@ -27,7 +27,7 @@ from ..settings.config import (
     overrides_dict,
     require,
 )
-from ..settings.presets import RunSettings, load_preset
+from ..settings.presets import RunSettings
 
 
 @dataclass(kw_only=True)
@@ -73,14 +73,15 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> T
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
     refuses a preset for another task), then the dataclass defaults, the task's and the preset's agent and run
     settings (flags may still change it: ``validate`` after them)."""
-    env = tasks.env_config(task, preset)
+    preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
+    env = tasks.env_config(task, preset, preset_data=preset_data)
     cls = TrainConfig[type(env.task)]
     base = cls(env=env, task=task)
     rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
     data = merge(dataclasses.asdict(base), rest)
     if preset is not None:
-        preset_data = {key: value for key, value in load_preset(preset, task).items() if key != "env"}
-        data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
+        data = merge(data, overrides_dict({key: value for key, value in preset_data.items() if key != "env"},
+                                          f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
 
 

@@ -81,16 +81,23 @@ def get(name: str) -> Task:
     return _TASKS[name]
 
 
-def env_config(name: str, preset: str | None = None, **overrides) -> EnvConfig:
+def preset_overrides(name: str, preset: str | None) -> dict:
+    """The overrides preset ``preset`` holds for task ``name`` (``load_preset``: every section checked, its ``env``
+    against the task's settings; ConfigError for a preset that names another task); {} for no preset."""
+    return {} if preset is None else load_preset(preset, name, EnvConfig[get(name).env_class.config_class])
+
+
+def env_config(name: str, preset: str | None = None, *, preset_data: dict | None = None, **overrides) -> EnvConfig:
     """The env config of task ``name``, validated: the dataclass defaults, the task's defaults, the preset's ``env``
-    section (ConfigError for a preset that names another task), then nested keyword overrides (``num_envs=64,
-    sim={"solver": "mujoco"}, task={...}``; None values ignored)."""
+    section (``preset_data``: the preset as ``preset_overrides`` read it, where the caller has), then nested keyword
+    overrides (``num_envs=64, sim={"solver": "mujoco"}, task={...}``; None values ignored)."""
     task = get(name)
     cls = EnvConfig[task.env_class.config_class]
     data = merge(dataclasses.asdict(cls(task=task.env_class.config_class())), task.defaults.get("env", {}))
     where = f"task {name!r}" + (f", preset {preset!r}" if preset else "")
     if preset is not None:
-        data = merge(data, overrides_dict(load_preset(preset, name, cls).get("env", {}), f"preset {preset!r}: env:"))
+        preset_data = preset_overrides(name, preset) if preset_data is None else preset_data
+        data = merge(data, overrides_dict(preset_data.get("env", {}), f"preset {preset!r}: env:"))
     data = merge(data, overrides_dict({k: v for k, v in overrides.items() if v is not None}, "overrides:"))
     return from_dict(cls, data, where).validate()
 
@@ -104,4 +111,4 @@ def make(name: str, num_envs: int | None = None, device: str | None = None, seed
     return get(name).env_class(cfg)
 
 
-__all__ = ["DEFAULT_TASK", "SolvedRule", "Task", "env_config", "get", "make", "names", "register"]
+__all__ = ["DEFAULT_TASK", "SolvedRule", "Task", "env_config", "get", "make", "names", "preset_overrides", "register"]
