@@ -54,8 +54,8 @@ def test_single_env_passes_check_env(env_id):
     task, _ = IDS[env_id]
     num_obs = cartpole_warp.tasks.get(task).env_class.num_obs
     assert isinstance(env.unwrapped, TaskGymEnv)
-    assert isinstance(env.unwrapped.core, cartpole_warp.tasks.get(task).env_class)
-    camera = env.unwrapped.core.cfg.camera
+    assert isinstance(env.unwrapped.env, cartpole_warp.tasks.get(task).env_class)
+    camera = env.unwrapped.env.cfg.camera
     frames = (camera.frame_stack, camera.height_px, camera.width_px)
     assert env.observation_space == {
         "none": gym.spaces.Box(-np.inf, np.inf, (num_obs,), np.float32),
@@ -74,14 +74,14 @@ def test_single_env_passes_check_env(env_id):
 
 
 def test_registered_ids_build_their_presets():
-    tutorial = gym.make(TUTORIAL_ID).unwrapped.core
+    tutorial = gym.make(TUTORIAL_ID).unwrapped.env
     assert tutorial.num_envs == 1
     assert tutorial.env_dt == pytest.approx(1 / 60)
     assert tutorial.max_episode_length == 2**31 - 1
-    default = gym.make(DEFAULT_ID, seed=4).unwrapped.core
+    default = gym.make(DEFAULT_ID, seed=4).unwrapped.env
     assert default.max_episode_length == 600
     assert default.cfg.seed == 4
-    swingup = gym.make(SWINGUP_ID, seed=2).unwrapped.core
+    swingup = gym.make(SWINGUP_ID, seed=2).unwrapped.env
     assert isinstance(swingup, cartpole_warp.tasks.get("cartpole-swingup").env_class)
     assert swingup.num_envs == 1 and swingup.num_obs == 5 and swingup.cfg.seed == 2
     assert swingup.env_dt == pytest.approx(0.02) and swingup.max_episode_length == 500
@@ -139,7 +139,7 @@ def test_vector_env_matches_core_env_step_for_step(env_id):
     num_envs, seed = 32, 9
     venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", task=SHORT_EPISODES)
     core = core_env(env_id, num_envs, task=SHORT_EPISODES)
-    assert isinstance(venv, TaskVectorEnv) and isinstance(venv.core, type(core))
+    assert isinstance(venv, TaskVectorEnv) and isinstance(venv.env, type(core))
     assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     assert venv.observation_space.shape == (num_envs, *core.obs_shape) and venv.action_space.shape == (num_envs, 1)
     obs, info = venv.reset(seed=seed)

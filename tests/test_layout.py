@@ -55,3 +55,12 @@ def test_the_policy_functions_that_left_the_runner_answer_from_rl_policies(monke
     monkeypatch.delitem(vars(runner), name, raising=False)  # a name an earlier lookup cached
     with pytest.warns(DeprecationWarning, match=f"rl.runner.{name} is now cartpole_warp.rl.policies.{name}"):
         assert getattr(runner, name) is getattr(policies, name)
+
+
+def test_the_gymnasium_envs_old_core_attribute_is_their_env():
+    from cartpole_warp.wrappers.gymnasium import TaskGymEnv, TaskVectorEnv
+
+    for env in (TaskGymEnv(), TaskVectorEnv(num_envs=2)):
+        with pytest.warns(DeprecationWarning, match=r"\.core is now \.env"):
+            assert env.core is env.env
+        env.close()

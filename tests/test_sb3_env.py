@@ -29,7 +29,7 @@ def test_single_gym_env_passes_sb3_check_env(env_id):
     task, preset = env_ids()[env_id]
     env = TaskGymEnv(task_name=task, preset=preset)
     sb3_check_env(env, warn=False)
-    assert env.observation_space.shape == env.core.obs_shape
+    assert env.observation_space.shape == env.env.obs_shape
 
 
 @pytest.mark.parametrize("task", TASKS)

@@ -22,6 +22,17 @@ def renamed(module: str, names: dict[str, str]) -> Callable[[str], object]:
     return __getattr__
 
 
+def renamed_attribute(old: str, new: str) -> property:
+    """A class's property that answers the attribute ``old`` with ``new``."""
+
+    def get(self) -> object:
+        warnings.warn(f"{type(self).__name__}.{old} is now .{new}; the old name goes in a later release",
+                      DeprecationWarning, stacklevel=2)
+        return getattr(self, new)
+
+    return property(get, doc=f"The old name of ``{new}``, for one more release.")
+
+
 def moved_names(module: str, new_module: str) -> Callable[[str], object]:
     """A package's ``__getattr__`` that answers a public name of the module it replaced with that name in
     ``new_module`` (imported on first use)."""

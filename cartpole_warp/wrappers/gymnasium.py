@@ -21,7 +21,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 
 from .. import tasks
 from ..engine.env import BatchedEnv
-from ..settings.deprecation import renamed
+from ..settings.deprecation import renamed, renamed_attribute
 
 if TYPE_CHECKING:
     import torch  # imported where used: parsing a command line needs no torch
@@ -38,7 +38,7 @@ def actions_tensor(actions, num_envs: int, env: BatchedEnv) -> torch.Tensor:
     return torch.from_numpy(array.reshape(shape)).to(env.device)
 
 
-def env_frames(core: BatchedEnv, render_mode: str | None):
+def env_frames(env: BatchedEnv, render_mode: str | None):
     """The frames behind ``render()`` for ``render_mode`` ('rgb_array' or None: nothing is drawn)."""
     if render_mode is None:
         return None
@@ -46,12 +46,12 @@ def env_frames(core: BatchedEnv, render_mode: str | None):
         raise ValueError(f"render_mode {render_mode!r} is not supported; use 'rgb_array' (or None)")
     from ..viz.frames import EnvFrames
 
-    return EnvFrames(core)
+    return EnvFrames(env)
 
 
-def render_metadata(core: BatchedEnv) -> dict:
+def render_metadata(env: BatchedEnv) -> dict:
     """``render_modes`` and ``render_fps`` (one frame per env step) for an env's metadata."""
-    return {"render_modes": ["rgb_array"], "render_fps": round(1.0 / core.env_dt)}
+    return {"render_modes": ["rgb_array"], "render_fps": round(1.0 / env.env_dt)}
 
 
 def env_ids() -> dict[str, tuple[str, str | None]]:
@@ -93,25 +93,25 @@ class TaskGymEnv(gym.Env):
         if "num_envs" in overrides:
             raise ValueError(f"{task_name}'s gymnasium env is one env; for {overrides['num_envs']} use "
                              "gym.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point')")
-        self.core = tasks.make(task_name, num_envs=1, device=device, seed=seed, preset=preset, **overrides)
+        self.env = tasks.make(task_name, num_envs=1, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
-        self.metadata = {**self.metadata, **render_metadata(self.core)}
-        self._frames = env_frames(self.core, render_mode)
-        self.observation_space = self.core.single_observation_space
-        self.action_space = self.core.single_action_space
+        self.metadata = {**self.metadata, **render_metadata(self.env)}
+        self._frames = env_frames(self.env, render_mode)
+        self.observation_space = self.env.single_observation_space
+        self.action_space = self.env.single_action_space
         self._episode_ended = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         if seed is None and self._episode_ended:
-            obs = self.core.get_observations()
+            obs = self.env.get_observations()
         else:
-            obs, _ = self.core.reset(seed=seed)
+            obs, _ = self.env.reset(seed=seed)
         self._episode_ended = False
         return obs[0].cpu().numpy(), {}
 
     def step(self, action):
-        obs, reward, terminated, truncated, info = self.core.step(actions_tensor(action, 1, self.core))
+        obs, reward, terminated, truncated, info = self.env.step(actions_tensor(action, 1, self.env))
         terminated, truncated = bool(terminated[0]), bool(truncated[0])
         self._episode_ended = terminated or truncated
         step_info = {}
@@ -120,7 +120,7 @@ class TaskGymEnv(gym.Env):
             step_info = {
                 "episode_return": float(info["episode_return"][0]),
                 "episode_length": int(info["episode_length"][0]),
-                "end_reason": self.core.end_reasons[int(info["end_reason"][0])],
+                "end_reason": self.env.end_reasons[int(info["end_reason"][0])],
             }
         return obs[0].cpu().numpy(), float(reward[0]), terminated, truncated, step_info
 
@@ -129,7 +129,9 @@ class TaskGymEnv(gym.Env):
         return self._frames[0] if self._frames is not None else None
 
     def close(self):
-        self.core.close()
+        self.env.close()
+
+    core = renamed_attribute("core", "env")
 
 
 class TaskVectorEnv(VectorEnv):
@@ -150,23 +152,23 @@ class TaskVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int | None = None, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None,
                  device: str = "cpu", seed: int | None = None, render_mode: str | None = None, **overrides):
-        self.core = tasks.make(task_name, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
+        self.env = tasks.make(task_name, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
-        self.metadata = {**self.metadata, **render_metadata(self.core)}
-        self._frames = env_frames(self.core, render_mode)
-        self.num_envs = self.core.num_envs
-        self.single_observation_space = self.core.single_observation_space
-        self.single_action_space = self.core.single_action_space
-        self.observation_space, self.action_space = self.core.observation_space, self.core.action_space
+        self.metadata = {**self.metadata, **render_metadata(self.env)}
+        self._frames = env_frames(self.env, render_mode)
+        self.num_envs = self.env.num_envs
+        self.single_observation_space = self.env.single_observation_space
+        self.single_action_space = self.env.single_action_space
+        self.observation_space, self.action_space = self.env.observation_space, self.env.action_space
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        obs, _ = self.core.reset(seed=seed)
+        obs, _ = self.env.reset(seed=seed)
         return obs.cpu().numpy(), {}
 
     def step(self, actions):
-        obs, reward, terminated, truncated, info = self.core.step(
-            actions_tensor(actions, self.num_envs, self.core))
+        obs, reward, terminated, truncated, info = self.env.step(
+            actions_tensor(actions, self.num_envs, self.env))
         terminated, truncated = terminated.cpu().numpy(), truncated.cpu().numpy()
         done = terminated | truncated
         infos = {}
@@ -186,7 +188,9 @@ class TaskVectorEnv(VectorEnv):
         return self._frames
 
     def close_extras(self, **kwargs):
-        self.core.close()
+        self.env.close()
+
+    core = renamed_attribute("core", "env")
 
 __getattr__ = renamed(__name__, {"CartpoleGymEnv": "TaskGymEnv", "CartpoleVectorEnv": "TaskVectorEnv"})
 """The old names (before they said what they serve), for one more release."""
