@@ -21,6 +21,7 @@ import warp as wp
 from ..settings.config import MAX_SEED, EnvConfig, TaskConfig
 from ..settings.files import data_path
 from . import randomization
+from .buffers import EnvBuffers
 from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
 from .observations import observations_of
 from .randomization import Physics, add_friction
@@ -118,7 +119,6 @@ class BatchedEnv(abc.ABC):
         """The per-env physical parameters and their draws."""
         self.observations.attach(self.shards)
         self._allocate()
-        self._make_views()
         with timed(self.build_time_s, "kernels"):
             self._seed(cfg.seed)
             self._reset_all()
@@ -148,95 +148,44 @@ class BatchedEnv(abc.ABC):
         return self.shards[0].scene
 
     def _allocate(self):
-        """The persistent Warp buffers of the batch (inputs, episode state, step results, counters, image stacks)."""
-        n, dev, k = self.num_envs, self.device, self._kernels
-
-        def buf(dtype, shape=n):
-            return wp.zeros(shape, dtype=dtype, device=dev)
-
-        self._actions = buf(k.Actions)
-        self._action_history = buf(k.Actions, (n, self.cfg.randomization.action_delay_steps + 1))
-        self._actuator_f = buf(float, (n, len(self.joint_roles)))
-        self._episodes = k.Episodes()
-        for name, dtype in k.Episodes.vars.items():
-            setattr(self._episodes, name, buf(dtype.type.dtype))
-        self._results = k.StepResults()
-        for name, dtype in k.StepResults.vars.items():
-            setattr(self._results, name, buf(dtype.type.dtype))
-        self._nonfinite_actions = buf(wp.int32, len(self.shards))
-        self._nonfinite_states = buf(wp.int32, len(self.shards))
-        self._diverged_states = buf(wp.int32, len(self.shards))
-        self._states_in = buf(k.State)
-        self._mask_in = buf(wp.bool)
-        self._all_envs = wp.full(n, True, dtype=wp.bool, device=dev)
+        """The batch's buffers (``EnvBuffers``), the step's settings, each shard's structs and the torch views."""
+        k = self._kernels
+        self.buffers = EnvBuffers(k, self.num_envs, len(self.joint_roles), self.cfg.randomization.action_delay_steps,
+                                  len(self.shards), self.observations, self.device)
         self._settings = k.StepSettings()
         self._settings.noise_std = float(self.cfg.randomization.obs_noise_std)
         self._settings.divergence_limit = float(self.cfg.sim.divergence_limit)
         self._settings.max_episode_length = int(self.max_episode_length)
-        self._shard_structs = [self._structs_of(shard) for shard in self.shards]
-        self._obs, self._final_obs = self.observations.buffers(self._episodes.obs, self._results.final_obs)
-
-    def _make_views(self):
-        """The torch tensors over the Warp buffers (zero-copy) that ``reset`` and ``step`` hand out or fill."""
-        self.actions_buf = wp.to_torch(self._actions)
-        self.state_obs_buf = wp.to_torch(self._episodes.obs)
+        self._shard_structs = [self.buffers.structs_of(shard, self._role_dofs) for shard in self.shards]
+        views = self.buffers.torch
+        self.actions_buf, self.obs_buf = views.actions, views.obs
+        self.state_obs_buf = views.state_obs
         """(N, num_obs) the task's state observations (zero-copy): the policy's observations unless it sees images,
         else the privileged observations of an asymmetric critic."""
-        self.obs_buf = wp.to_torch(self._obs)
-        self.final_state_buf = wp.to_torch(self._results.final_state)
+        self.final_state_buf = views.final_state
         """(N, 2 x joint roles) where the last step ended an episode, the joint state it ended at (``set_state``'s
         layout; the last sound one if the state turned non-finite or diverged), zero-copy: the robot is already
         reset there."""
-        self.reward_buf = wp.to_torch(self._results.reward)
-        self.terminated_buf = wp.to_torch(self._results.terminated)
-        self.truncated_buf = wp.to_torch(self._results.truncated)
-        self._time_out_count_t = wp.to_torch(self._episodes.time_out_count)
-        self._states_in_t = wp.to_torch(self._states_in)
-        self._mask_in_t = wp.to_torch(self._mask_in)
-        self._info_views = {
-            "final_obs": wp.to_torch(self._final_obs),
-            "episode_return": wp.to_torch(self._results.ended_return),
-            "episode_length": wp.to_torch(self._results.ended_length),
-            "end_reason": wp.to_torch(self._results.end_reason),
-        }
-        self._counter_views = {
-            "nonfinite_actions": wp.to_torch(self._nonfinite_actions),
-            "nonfinite_states": wp.to_torch(self._nonfinite_states),
-            "diverged_states": wp.to_torch(self._diverged_states),
-        }
-
-    def _structs_of(self, shard: Shard) -> tuple:
-        """(robot, episodes, results): the kernels' structs over the shard's scene and rows (views, made once)."""
-        k, s = self._kernels, shard.scene
-        robot = k.Robot()
-        robot.joint_q, robot.joint_qd, robot.joint_f = s.state_0.joint_q, s.state_0.joint_qd, s.control.joint_f
-        robot.dofs_per_env, robot.role_dofs = s.dofs_per_env, self._role_dofs
-        views = []
-        for whole, struct in ((self._episodes, k.Episodes), (self._results, k.StepResults)):
-            part = struct()
-            for name in struct.vars:
-                setattr(part, name, shard.rows(getattr(whole, name)))
-            views.append(part)
-        return robot, *views
+        self.reward_buf, self.terminated_buf, self.truncated_buf = views.reward, views.terminated, views.truncated
 
     @property
     def episode_length_buf(self) -> "torch.Tensor":
         """(N,) int32 time-out counter: the episode is truncated when it reaches ``max_episode_length`` (zero-copy;
         assigning copies into it, as rsl-rl's ``init_at_random_ep_len`` does to spread the time-outs). The
         ``episode_length`` reported at the end is the steps the episode really ran, whatever was assigned."""
-        return self._time_out_count_t
+        return self.buffers.torch.time_out_count
 
     @episode_length_buf.setter
     def episode_length_buf(self, value: "torch.Tensor"):
-        self._time_out_count_t.copy_(value)
+        self.buffers.torch.time_out_count.copy_(value)
 
     def _apply_actions(self, shard: Shard):
         robot, episodes, _ = self._shard_structs[shard.index]
         rows = shard.rows
         wp.launch(self._kernels.apply_actions, dim=shard.num_envs,
                   inputs=[self.params, robot, episodes, rows(self.physics.delay), rows(self.physics.actuator_scale)],
-                  outputs=[rows(self._actions), rows(self._action_history), rows(self._actuator_f),
-                           shard.slot(self._nonfinite_actions)],
+                  outputs=[rows(self.buffers.actions), rows(self.buffers.action_history), rows(self.buffers.actuator_f),
+                           shard.slot(self.buffers.nonfinite_actions)],
                   device=self.device)
 
     def _simulate(self, shard: Shard):
@@ -246,7 +195,7 @@ class BatchedEnv(abc.ABC):
         if self.physics.has_friction:
             def add_joint_friction():
                 wp.launch(add_friction, dim=shard.num_envs,
-                          inputs=[s.dofs_per_env, self._role_dofs, shard.rows(self._actuator_f),
+                          inputs=[s.dofs_per_env, self._role_dofs, shard.rows(self.buffers.actuator_f),
                                   shard.rows(self.physics.friction), s.state_0.joint_qd],
                           outputs=[s.control.joint_f], device=self.device)
         s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation, add_joint_friction)
@@ -254,39 +203,41 @@ class BatchedEnv(abc.ABC):
     def physics_step(self, shard: Shard):
         """Random actions in [-1, 1], the task's joint forces and ``decimation`` solver steps for one shard: an env step
         without observations, rewards or resets (what ``tools.bench`` times as the physics alone)."""
-        wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(self._episodes.rng_state)],
-                  outputs=[shard.rows(self._actions)], device=self.device)
+        b = self.buffers
+        wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(b.episodes.rng_state)],
+                  outputs=[shard.rows(b.actions)], device=self.device)
         self._apply_actions(shard)
         self._simulate(shard)
 
     def _step_kernels(self, shard: Shard):
         robot, episodes, results = self._shard_structs[shard.index]
+        b = self.buffers
         self._apply_actions(shard)
         self._simulate(shard)
         self.observations.after_physics(shard)
         wp.launch(self._kernels.end_step, dim=shard.num_envs,
-                  inputs=[self.params, self._settings, robot, shard.rows(self._actions)],
-                  outputs=[episodes, results, shard.slot(self._nonfinite_states), shard.slot(self._diverged_states)],
+                  inputs=[self.params, self._settings, robot, shard.rows(b.actions)],
+                  outputs=[episodes, results, shard.slot(b.nonfinite_states), shard.slot(b.diverged_states)],
                   device=self.device)
         self.observations.after_step(shard, results)
         if self.physics.drawn and self.cfg.randomization.at == "reset":
-            self.physics.draw(shard, self._episodes.rng_state, self._results.end_reason)
+            self.physics.draw(shard, b.episodes.rng_state, b.results.end_reason)
 
     def _seed(self, seed: int):
         for shard in self.shards:
             wp.launch(init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
-                      outputs=[shard.rows(self._episodes.rng_state)], device=self.device)
+                      outputs=[shard.rows(self.buffers.episodes.rng_state)], device=self.device)
 
     def _reset_all(self):
         """A new episode in every env, and new physics where it is randomized."""
         for shard in self.shards:
             robot, episodes, _ = self._shard_structs[shard.index]
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
-                      inputs=[shard.rows(self._all_envs), self.params, self._settings],
+                      inputs=[shard.rows(self.buffers.all_envs), self.params, self._settings],
                       outputs=[robot, episodes], device=self.device)
-            self.observations.start(shard, self._all_envs)
+            self.observations.start(shard, self.buffers.all_envs)
             if self.physics.drawn:
-                self.physics.draw(shard, self._episodes.rng_state, None)
+                self.physics.draw(shard, self.buffers.episodes.rng_state, None)
 
     def _check(self, name: str, value, shapes: tuple, dtype: "torch.dtype") -> "torch.Tensor":
         import torch
@@ -304,8 +255,8 @@ class BatchedEnv(abc.ABC):
         return value
 
     def _outputs(self):
-        info = {k: v.clone() for k, v in self._info_views.items()}
-        info.update({k: v.sum() for k, v in self._counter_views.items()})
+        info = {k: v.clone() for k, v in self.buffers.torch.info.items()}
+        info.update({k: v.sum() for k, v in self.buffers.torch.counters.items()})
         return info
 
     def reset(self, seed: int | None = None) -> "tuple[torch.Tensor, dict]":
@@ -342,18 +293,19 @@ class BatchedEnv(abc.ABC):
         if not torch.isfinite(states).all():
             raise ValueError("states: every value must be finite")
         mask = self._check("mask", mask, ((n,),), torch.bool) if mask is not None else None
-        self._states_in_t.copy_(states)
+        self.buffers.torch.states_in.copy_(states)
         if mask is None:
-            self._mask_in_t.fill_(True)
+            self.buffers.torch.mask_in.fill_(True)
         else:
-            self._mask_in_t.copy_(mask)
+            self.buffers.torch.mask_in.copy_(mask)
         with self._order:
             for shard in self.shards:
                 robot, episodes, _ = self._shard_structs[shard.index]
                 wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
-                          inputs=[shard.rows(self._states_in), shard.rows(self._mask_in), self.params, self._settings],
+                          inputs=[shard.rows(self.buffers.states_in), shard.rows(self.buffers.mask_in), self.params,
+                                  self._settings],
                           outputs=[robot, episodes], device=self.device)
-                self.observations.start(shard, self._mask_in)
+                self.observations.start(shard, self.buffers.mask_in)
         return self.obs_buf.clone()
 
     def physical_params(self) -> "dict[str, torch.Tensor]":
