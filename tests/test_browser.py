@@ -287,3 +287,30 @@ def test_the_page_gives_the_tasks_play_metric_without_rounding_to_all(make, epis
     finally:
         viewer.close()
     assert line == expected
+
+
+def test_ctrl_c_interrupts_the_viewers_in_the_main_thread_and_leaves_other_threads_alone():
+    import threading
+
+    from cartpole_warp.viz.web import ctrl_c_interrupts
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a background job starts
+    try:
+        with ctrl_c_interrupts():
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN, "restored on the way out"
+        errors = []
+
+        def in_thread():
+            try:
+                with ctrl_c_interrupts():
+                    pass
+            except ValueError as err:  # signal.signal outside the main thread
+                errors.append(err)
+
+        thread = threading.Thread(target=in_thread)
+        thread.start()
+        thread.join()
+        assert errors == []
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -138,8 +138,8 @@ class BatchedEnv(abc.ABC):
         return self.observations.images
 
     @property
-    def cameras(self) -> list:
-        """Each shard's camera views (empty where the policy observes the task's state)."""
+    def cameras(self) -> "list | tuple":
+        """Each shard's camera views (none where the policy observes the task's state)."""
         return self.observations.cameras
 
     @property

@@ -15,8 +15,8 @@ class StateObservations:
     """The policy observes the task's state as the step kernel writes it: no work of its own."""
 
     images = False
-    modules: list = []
-    cameras: list = []
+    modules: tuple = ()
+    cameras: tuple = ()
 
     def attach(self, shards: list) -> None:
         """Nothing to place on the scenes."""

@@ -17,6 +17,7 @@ import math
 import signal
 import socket
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -190,7 +191,11 @@ class WebViewer:
 @contextlib.contextmanager
 def ctrl_c_interrupts():
     """Ctrl-C (SIGINT) raises ``KeyboardInterrupt`` inside, also in a process started with SIGINT ignored (a
-    background job's, a pytest-xdist worker's children): the viewers end on Ctrl-C as training does."""
+    background job's, a pytest-xdist worker's children): the viewers end on Ctrl-C as training does. Outside the main
+    thread (where Python allows no handler) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
