@@ -156,7 +156,7 @@ def test_the_actor_sees_frames_and_the_critic_the_state(make):
     cfg = to_rsl_rl(RunnerConfig(), mirror=False, images=True)
     assert cfg["obs_groups"] == {"actor": ["policy"], "critic": ["critic"]}
     assert cfg["actor"]["class_name"].endswith(":ImageModel") and cfg["critic"]["class_name"] == "MLPModel"
-    assert cfg["actor"]["cnn_cfg"] == {"output_channels": [16, 32, 32], "kernel_size": [8, 4, 3],
+    assert cfg["actor"]["cnn_cfg"] == {"output_channels": [8, 16, 16], "kernel_size": [4, 4, 3],
                                        "stride": [4, 2, 1], "activation": "elu"}
     assert cfg["actor"]["precision"] == "bfloat16"
 

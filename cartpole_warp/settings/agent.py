@@ -46,14 +46,16 @@ class ModelConfig:
 
 @dataclass
 class CnnConfig:
-    """The image encoder of a policy that sees camera frames (rsl-rl ``CNN``; its flattened output feeds the MLP)."""
+    """The image encoder of a policy that sees camera frames (rsl-rl ``CNN``; its flattened output feeds the MLP). The
+    default, chosen by experiment (docs/benchmarks.md): a first convolution over non-overlapping 4x4 pixel blocks, then
+    two small ones; narrow, since an encoder's update costs more than the env's step."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
     output_channels: Annotated[list[Count], pydantic.Field(min_length=1)] = field(
-        default_factory=lambda: [16, 32, 32])
+        default_factory=lambda: [8, 16, 16])
     """Channels of each convolution."""
-    kernel_size: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [8, 4, 3])
+    kernel_size: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [4, 4, 3])
     """Kernel size of each convolution (one value: all)."""
     stride: Annotated[list[Count], pydantic.Field(min_length=1)] = field(default_factory=lambda: [4, 2, 1])
     """Stride of each convolution (one value: all)."""

@@ -80,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     shape = (rows, channels, camera.height_px, camera.width_px)
     frames = (torch.randint(0, 256, shape, dtype=torch.uint8, device=device) if dtype == torch.uint8
               else torch.rand(shape, device=device) * 8.0)
-    everything = TensorDict({"policy": frames, "critic": torch.zeros(rows, 4, device=device)}, batch_size=[rows])
+    everything = TensorDict({"policy": frames, "critic": torch.zeros(rows, 4, device=device)},
+                            batch_size=[rows], device=device)
     obs = everything[:n]
     actor_cfg = to_rsl_rl(cfg.agent, images=True)["actor"]
     actor_cfg = {key: value for key, value in actor_cfg.items() if key not in ("class_name", "precision")}
