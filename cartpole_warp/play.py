@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Annotated, Generic, Literal
 import tyro
 
 from . import tasks
-from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries
+from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, expand_aliases, parse, peek, quiet_libraries
 from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config
 from .rl.runs import (
@@ -49,6 +49,39 @@ if TYPE_CHECKING:
 
 Agent = Literal["trained", "zero", "random"]
 Viewer = Literal["window", "viser", "none"]
+
+
+@dataclass
+class GridArgs:
+    """--eval's grid of physical parameters: up to three axes, each a name of ``env.physical_params()`` and factors that
+    multiply the stage's value (or are the values themselves where the stage's is 0: damping, friction, action
+    delay)."""
+
+    x: str | None = None
+    """The parameter along the heatmap's x axis (default: the mass of the task's last joint role, pole_mass_kg for the
+    cart-pole tasks)."""
+    x_factors: list[float] = field(default_factory=lambda: [0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0])
+    y: str = "actuator_scale"
+    """The parameter along the y axis."""
+    y_factors: list[float] = field(default_factory=lambda: [0.5, 0.6, 0.7, 0.85, 1.0, 1.15, 1.3, 1.5])
+    z: str | None = None
+    """A third parameter: the table and heatmap show the worst over it (the CSV every cell)."""
+    z_factors: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0])
+    episodes: int = 64
+    """Episodes per cell (one env each)."""
+
+    def axes(self, joint_roles: tuple[str, ...]) -> list:
+        """The axes for a task with these joint roles."""
+        from .evaluation.robustness import Axis
+
+        named = [(self.x or f"{joint_roles[-1]}_mass_kg", self.x_factors), (self.y, self.y_factors),
+                 (self.z, self.z_factors)]
+        return [Axis(name, tuple(factors)) for name, factors in named if name is not None]
+
+
+GRID_ALIASES = {f"--grid-{name}": f"--grid.{name}" for name in
+                ("x", "x-factors", "y", "y-factors", "z", "z-factors", "episodes")}
+"""The grid's flags as they were spelt before they were grouped (``--grid-x`` for ``--grid.x``): still taken."""
 
 
 @dataclass
@@ -90,30 +123,10 @@ class PlayArgs(Generic[TaskT]):
     output: Path | None = None
     """Folder for the GIF, USD and result (default <run>/play, or <log-dir>/play/<agent>)."""
     eval: bool = False
-    """With --headless, instead of the rollout: play --grid-episodes episodes in each cell of a grid of physical
+    """With --headless, instead of the rollout: play --grid.episodes episodes in each cell of a grid of physical
     parameters (factors on the stage's values, without the run's randomization) and write <output>/robustness.csv
     and robustness.png (success: the time limit reached, and the task's reward per step where its rule asks)."""
-    grid_x: str | None = None
-    """--eval: the parameter along the heatmap's x axis (a name of ``env.physical_params()``; default: the mass of the
-    task's last joint role, pole_mass_kg for the cart-pole tasks); its factors multiply the stage's value, or are the
-    values themselves where the stage's is 0 (damping, friction, action delay)."""
-    grid_x_factors: list[float] = field(default_factory=lambda: [0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0])
-    grid_y: str = "actuator_scale"
-    """--eval: the parameter along the y axis."""
-    grid_y_factors: list[float] = field(default_factory=lambda: [0.5, 0.6, 0.7, 0.85, 1.0, 1.15, 1.3, 1.5])
-    grid_z: str | None = None
-    """--eval: a third parameter; the table and heatmap show the worst over it (the CSV every cell)."""
-    grid_z_factors: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0])
-    grid_episodes: int = 64
-    """--eval: episodes per cell (one env each)."""
-
-    def grid(self, joint_roles: tuple[str, ...]) -> list:
-        """The --eval axes for a task with these joint roles."""
-        from .evaluation.robustness import Axis
-
-        named = [(self.grid_x or f"{joint_roles[-1]}_mass_kg", self.grid_x_factors), (self.grid_y, self.grid_y_factors),
-                 (self.grid_z, self.grid_z_factors)]
-        return [Axis(name, tuple(factors)) for name, factors in named if name is not None]
+    grid: GridArgs = field(default_factory=GridArgs)
 
 
 def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
@@ -134,7 +147,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         require(not first.task or first.task == cfg.task, f"--task {first.task}: the run was trained on {cfg.task}")
     cfg.env.num_envs = cfg.eval.num_envs
     cls = PlayArgs[type(cfg.env.task)]
-    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), argv, __doc__, ENV_ALIASES)
+    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), expand_aliases(argv, GRID_ALIASES),
+                 __doc__, ENV_ALIASES)
     require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
             f"--agent {args.agent} takes no --run, --checkpoint or --export")
     require(args.steps is None or args.steps >= 1, f"--steps must be >= 1, got {args.steps}")
@@ -153,19 +167,20 @@ def grid_envs(args: PlayArgs, cfg: TrainConfig, argv: list[str]):
     """--eval: the grid's checks, and the envs it plays in ``cfg.env`` (episodes of every cell, the largest action
     delay it asks for)."""
     require(args.headless, "--eval runs headless: add --headless")
-    require(args.grid_episodes >= 1, f"--grid-episodes must be >= 1, got {args.grid_episodes}")
+    grid = args.grid
+    require(grid.episodes >= 1, f"--grid.episodes must be >= 1, got {grid.episodes}")
     require(args.steps is None, "--eval plays each episode to the time limit: drop --steps")
     require(cfg.env.task.has_time_limit, "--eval needs a time limit (task.episode_length_s)")
     envs = peek(argv, num_envs=None, **{"env.num_envs": None})
     require(envs.num_envs is None and getattr(envs, "env.num_envs") is None,
-            "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs")
-    axes = args.grid(cfg.task_spec.env_class.joint_roles)
+            "--eval sets the envs itself (grid cells x --grid.episodes): drop --num-envs")
+    axes = grid.axes(cfg.task_spec.env_class.joint_roles)
     names = [axis.name for axis in axes]
     require(len(set(names)) == len(names), f"each grid axis needs its own parameter, got {', '.join(names)}")
-    for axis, flag in zip(axes, (f"--grid-{letter}-factors" for letter in "xyz")):
+    for axis, flag in zip(axes, (f"--grid.{letter}-factors" for letter in "xyz")):
         require(axis.factors and min(axis.factors) >= 0 and math.isfinite(max(axis.factors)),
                 f"{flag} needs finite factors >= 0, got {' '.join(f'{f:g}' for f in axis.factors) or 'none'}")
-    cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * args.grid_episodes
+    cfg.env.num_envs = math.prod(len(axis.factors) for axis in axes) * grid.episodes
     delays = [max(axis.factors) for axis in axes if axis.name == "action_delay_steps"]
     require(all(d == int(d) for d in delays), "action_delay_steps factors are whole env steps")
     cfg.env.randomization = RandomizationConfig(at="startup", action_delay_steps=int(max(delays, default=0)))
@@ -314,16 +329,16 @@ def evaluate_robustness(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, c
     """--eval: the grid's success rates, printed and written as CSV and PNG."""
     from .evaluation.robustness import evaluate_grid, format_table, plot_heatmap, write_table
 
-    axes = args.grid(cfg.task_spec.env_class.joint_roles)
-    print(f"{cfg.task}: {args.grid_episodes} episodes in each of {env.num_envs // args.grid_episodes} cells "
+    axes = args.grid.axes(cfg.task_spec.env_class.joint_roles)
+    print(f"{cfg.task}: {args.grid.episodes} episodes in each of {env.num_envs // args.grid.episodes} cells "
           f"({env.num_envs} envs) ...", flush=True)
-    result = evaluate_grid(env, policy, axes, args.grid_episodes, cfg.task_spec.solved)
+    result = evaluate_grid(env, policy, axes, args.grid.episodes, cfg.task_spec.solved)
     print(format_table(result))
     output = output_dir(args, checkpoint)
     who = f"{checkpoint.parent.name}/{checkpoint.name}" if checkpoint else f"{args.agent} policy"
     table = write_table(output / "robustness.csv", result)
     heatmap = plot_heatmap(output / "robustness.png", result,
-                           f"{cfg.task}: {who}\n{args.grid_episodes} episodes per cell")
+                           f"{cfg.task}: {who}\n{args.grid.episodes} episodes per cell")
     print(f"wrote {table} and {heatmap}")
     return 0
 

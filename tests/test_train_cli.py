@@ -154,7 +154,7 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
     result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task,
-                            "--grid-x-factors", "0.5", "2", "--grid-y-factors", "0.7", "1.3", "--grid-episodes", "3")
+                            "--grid.x-factors", "0.5", "2", "--grid.y-factors", "0.7", "1.3", "--grid.episodes", "3")
     assert result.returncode == 0, result.stdout + result.stderr
     assert f"{task}: 3 episodes in each of 4 cells (12 envs)" in result.stdout
     assert re.search(r"x0\.7 +\d+% +\d+%", result.stdout), result.stdout
@@ -169,19 +169,19 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
 
 
 @pytest.mark.parametrize(("flags", "message"), [
-    (["--grid-x", "pole_length_m"], "robustness axis 'pole_length_m' is not a settable physical parameter"),
-    (["--grid-x", "actuator_scale"], "each grid axis needs its own parameter, got actuator_scale, actuator_scale"),
-    (["--num-envs", "16"], "--eval sets the envs itself (grid cells x --grid-episodes): drop --num-envs"),
+    (["--grid-x", "pole_length_m"], "robustness axis 'pole_length_m' is not a settable physical parameter"),  # old
+    (["--grid.x", "actuator_scale"], "each grid axis needs its own parameter, got actuator_scale, actuator_scale"),
+    (["--num-envs", "16"], "--eval sets the envs itself (grid cells x --grid.episodes): drop --num-envs"),
     (["--env.num-envs", "16"], "drop --num-envs"),
-    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "inf"],
-     "error: --grid-x-factors needs finite factors >= 0, got 0 inf"),
-    (["--grid-x", "action_delay_steps", "--grid-x-factors", "0", "1e12"],
+    (["--grid.x", "action_delay_steps", "--grid.x-factors", "0", "inf"],
+     "error: --grid.x-factors needs finite factors >= 0, got 0 inf"),
+    (["--grid.x", "action_delay_steps", "--grid.x-factors", "0", "1e12"],
      "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
 ])
 def test_play_eval_refuses_what_it_cannot_honour(trained, run_main, flags, message):
     log_dir, run, _ = trained
     task = yaml.safe_load((run / "config.yaml").read_text())["task"]
-    result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid-episodes", "1",
+    result = run_main("play", "--headless", "--eval", "--log-dir", log_dir, "--task", task, "--grid.episodes", "1",
                       *flags)
     assert result.returncode != 0 and message in result.stderr, result.stderr
 
