@@ -46,7 +46,9 @@ MOVED_MODULES = {
     f"{__name__}.deprecation": f"{__name__}.settings.deprecation",
     f"{__name__}.statistics": f"{__name__}.evaluation.statistics",
     f"{__name__}.robustness": f"{__name__}.evaluation.robustness",
+    f"{__name__}.tasks.cartpole": f"{__name__}.tasks.cart_base",
 }
-"""The modules' paths before the layers became folders (old -> new), for one more release; the old
-``cartpole_warp.evaluation`` module's names are answered by the ``evaluation`` package."""
+"""The modules' old paths (before the layers became folders, and the cart tasks' shared module, which is no task)
+-> their new ones, for one more release; the old ``cartpole_warp.evaluation`` module's names are answered by the
+``evaluation`` package."""
 alias_moved_modules(MOVED_MODULES)

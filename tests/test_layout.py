@@ -16,6 +16,7 @@ OLD_PATHS = {  # the root modules of 56e07f5 -> their folders
     "streams": "engine.streams", "config": "settings.config",
     "agent": "settings.agent", "presets": "settings.presets", "files": "settings.files",
     "deprecation": "settings.deprecation", "statistics": "evaluation.statistics", "robustness": "evaluation.robustness",
+    "tasks.cartpole": "tasks.cart_base",  # the cart tasks' shared parts, named like a task before
 }
 
 
@@ -64,3 +65,21 @@ def test_the_gymnasium_envs_old_core_attribute_is_their_env():
         with pytest.warns(DeprecationWarning, match=r"\.core is now \.env"):
             assert env.core is env.env
         env.close()
+
+
+def test_a_task_written_with_the_old_evaluate_name_gets_its_reward_and_end():
+    import dataclasses
+
+    from cartpole_warp.engine.kernels import TaskFunctions
+    from cartpole_warp.tasks import balance, balance_sparse
+
+    functions = balance.CartpoleBalanceEnv.functions
+    message = r"TaskFunctions\(evaluate=\.\.\.\) is now TaskFunctions\(reward_and_end="
+    with pytest.warns(DeprecationWarning, match=message):
+        old = dataclasses.replace(functions, evaluate=balance_sparse.reward_and_end)
+    assert old == balance_sparse.CartpoleBalanceSparseEnv.functions
+    with pytest.warns(DeprecationWarning):
+        assert TaskFunctions(functions.observe, evaluate=functions.reward_and_end, sample_reset=functions.sample_reset,
+                             joint_forces=functions.joint_forces) == functions
+    with pytest.raises(TypeError, match="TaskFunctions: missing reward_and_end"):
+        TaskFunctions(functions.observe, sample_reset=functions.sample_reset, joint_forces=functions.joint_forces)

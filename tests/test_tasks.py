@@ -18,7 +18,7 @@ from cartpole_warp.evaluation.rollouts import rollout
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.settings.config import ConfigError, NonNegative
-from cartpole_warp.tasks.cartpole import CartpoleConfig, CartTaskEnv
+from cartpole_warp.tasks.cart_base import CartpoleConfig, CartTaskEnv
 from cartpole_warp.wrappers.gymnasium import register_envs
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
@@ -97,7 +97,7 @@ def observe(q: wp.vec2, qd: wp.vec2, p: Any):
 
 
 @wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
+def reward_and_end(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
     return wp.exp(-q[0] * q[0] - qd[1] * qd[1]), END_NONE
 
 
@@ -120,7 +120,8 @@ class HoldStillEnv(CartTaskEnv):
     config_class = HoldStillConfig
     num_obs = 3
     stage = "cartpole_dmc.usda"
-    functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=joint_forces)
+    functions = TaskFunctions(observe=observe, reward_and_end=reward_and_end, sample_reset=sample_reset,
+                              joint_forces=joint_forces)
 
 
 HOLD_STILL = tasks.Task(name="test-hold-still", env_class=HoldStillEnv, summary="hold the cart at the centre",

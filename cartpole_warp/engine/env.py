@@ -11,28 +11,26 @@ and the torch side (input checks, views, info).
 """
 
 import abc
-import numbers
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
-import numpy as np
 import warp as wp
 
-from ..settings.config import MAX_SEED, EnvConfig, TaskConfig
+from ..settings.config import EnvConfig, TaskConfig, check_seed
 from ..settings.files import data_path
 from . import randomization
 from .buffers import EnvBuffers
-from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of
+from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of, step_settings
 from .observations import observations_of
-from .randomization import Physics, add_friction
+from .randomization import PhysicalParams
 from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output
 from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
+from .spaces import VectorSpaces
 
 if TYPE_CHECKING:
-    import gymnasium
     import torch  # imported where used: parsing a command line needs no torch
 
-class BatchedEnv(abc.ABC):
+class BatchedEnv(VectorSpaces, abc.ABC):
     """``num_envs`` copies of a task's robot stepped together on persistent Warp buffers (the machinery of every task).
 
     A task subclass sets the class attributes below and keeps its spec (observation, action, reward, ends, reset) in
@@ -111,10 +109,10 @@ class BatchedEnv(abc.ABC):
                            for i, (start, stop) in enumerate(bounds)]
         self.params = params_of(self.config_class, cfg.task)
         self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
-        from .streams import TorchOrder  # torch, imported once an env is built
+        from .streams import StreamOrder  # torch, imported once an env is built
 
-        self._order = TorchOrder(self.device)
-        self.physics = Physics(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
+        self._order = StreamOrder(self.device)
+        self.physics = PhysicalParams(cfg.randomization, self.joint_roles, [joint.kind for joint in joints], self.scene,
                                self.num_envs, self.device)
         """The per-env physical parameters and their draws."""
         self.observations.attach(self.shards)
@@ -152,10 +150,7 @@ class BatchedEnv(abc.ABC):
         k = self._kernels
         self.buffers = EnvBuffers(k, self.num_envs, len(self.joint_roles), self.cfg.randomization.action_delay_steps,
                                   len(self.shards), self.observations, self.device)
-        self._settings = k.StepSettings()
-        self._settings.noise_std = float(self.cfg.randomization.obs_noise_std)
-        self._settings.divergence_limit = float(self.cfg.sim.divergence_limit)
-        self._settings.max_episode_length = int(self.max_episode_length)
+        self._settings = step_settings(k, self.cfg)
         self._shard_structs = [self.buffers.structs_of(shard, self._role_dofs) for shard in self.shards]
         views = self.buffers.torch
         self.actions_buf, self.obs_buf = views.actions, views.obs
@@ -190,15 +185,8 @@ class BatchedEnv(abc.ABC):
 
     def _simulate(self, shard: Shard):
         """``decimation`` solver steps, each after the joints' friction where it is randomized."""
-        s = shard.scene
-        add_joint_friction = None
-        if self.physics.has_friction:
-            def add_joint_friction():
-                wp.launch(add_friction, dim=shard.num_envs,
-                          inputs=[s.dofs_per_env, self._role_dofs, shard.rows(self.buffers.actuator_f),
-                                  shard.rows(self.physics.friction), s.state_0.joint_qd],
-                          outputs=[s.control.joint_f], device=self.device)
-        s.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation, add_joint_friction)
+        friction = self.physics.friction_hook(shard, shard.rows(self.buffers.actuator_f), self._role_dofs)
+        shard.scene.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation, friction)
 
     def physics_step(self, shard: Shard):
         """Random actions in [-1, 1], the task's joint forces and ``decimation`` solver steps for one shard: an env step
@@ -240,19 +228,9 @@ class BatchedEnv(abc.ABC):
                 self.physics.draw(shard, self.buffers.episodes.rng_state, None)
 
     def _check(self, name: str, value, shapes: tuple, dtype: "torch.dtype") -> "torch.Tensor":
-        import torch
+        from .streams import check_tensor
 
-        shape = " or ".join(str(tuple(s)) for s in shapes)
-        expected = f"a torch.Tensor of shape {shape}, dtype {dtype}, on {self.device}"
-        if not isinstance(value, torch.Tensor):
-            raise ValueError(f"{name}: expected {expected}; got {type(value).__name__}")
-        if tuple(value.shape) not in [tuple(s) for s in shapes]:
-            raise ValueError(f"{name}: expected {expected}; got shape {tuple(value.shape)}")
-        if value.dtype != dtype:
-            raise ValueError(f"{name}: expected {expected}; got dtype {value.dtype}")
-        if value.device != torch.device(self.device):
-            raise ValueError(f"{name}: expected {expected}; got device {value.device}")
-        return value
+        return check_tensor(name, value, shapes, dtype, self.device)
 
     def _outputs(self):
         info = {k: v.clone() for k, v in self.buffers.torch.info.items()}
@@ -261,9 +239,8 @@ class BatchedEnv(abc.ABC):
 
     def reset(self, seed: int | None = None) -> "tuple[torch.Tensor, dict]":
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral)
-                                 or not 0 <= seed <= MAX_SEED):
-            raise ValueError(f"seed: expected a whole number in [0, {MAX_SEED}] or None, got {seed!r}")
+        if seed is not None:
+            check_seed(seed)
         with self._order:
             if seed is not None:
                 self._seed(seed)
@@ -294,10 +271,7 @@ class BatchedEnv(abc.ABC):
             raise ValueError("states: every value must be finite")
         mask = self._check("mask", mask, ((n,),), torch.bool) if mask is not None else None
         self.buffers.torch.states_in.copy_(states)
-        if mask is None:
-            self.buffers.torch.mask_in.fill_(True)
-        else:
-            self.buffers.torch.mask_in.copy_(mask)
+        self.buffers.torch.mask_in[:] = True if mask is None else mask
         with self._order:
             for shard in self.shards:
                 robot, episodes, _ = self._shard_structs[shard.index]
@@ -347,42 +321,9 @@ class BatchedEnv(abc.ABC):
         """The task's state observations (N, num_obs), a fresh tensor (the critic's where the policy sees images)."""
         return self.state_obs_buf.clone()
 
-    @property
-    def single_observation_space(self) -> "gymnasium.spaces.Box":
-        """One env's observations as a gymnasium space: ``num_obs`` unbounded float32 (the task's docstring names
-        them), or with a camera its frames (``obs_shape``): uint8 in [0, 255] (rgb) or float32 metres (depth)."""
-        return self.observations.space(self.obs_shape)
-
-    @property
-    def single_action_space(self) -> "gymnasium.spaces.Box":
-        """One env's actions as a gymnasium space: ``num_actions`` values in [-1, 1] (the env clips to it)."""
-        import gymnasium
-
-        return gymnasium.spaces.Box(-1.0, 1.0, (self.num_actions,), np.float32)
-
-    @property
-    def observation_space(self) -> "gymnasium.spaces.Box":
-        """The batch's observations, (num_envs, ...) (gymnasium's vector-env convention, as Isaac Lab's)."""
-        from gymnasium.vector.utils import batch_space
-
-        return batch_space(self.single_observation_space, self.num_envs)
-
-    @property
-    def action_space(self) -> "gymnasium.spaces.Box":
-        """The batch's actions, (num_envs, num_actions)."""
-        from gymnasium.vector.utils import batch_space
-
-        return batch_space(self.single_action_space, self.num_envs)
-
     def __repr__(self) -> str:
         limit = (f"time limit {self.max_episode_length} steps ({self.cfg.task.episode_length_s:g} s)"
                  if self.cfg.task.has_time_limit else "no time limit")
         return (f"<{type(self).__name__}: {self.num_envs} envs on {self.device}, observations "
                 f"{self.single_observation_space}, actions {self.single_action_space}, {limit}, "
                 f"env step {self.env_dt:g} s>")
-
-    @property
-    def obs_shape(self) -> tuple[int, ...]:
-        """One env's observation: (num_obs,) float32, or with a camera (channels x frame_stack, height, width) uint8
-        (rgb) or float32 metres (depth), oldest frame first."""
-        return tuple(self.obs_buf.shape[1:])

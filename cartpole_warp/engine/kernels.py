@@ -8,13 +8,14 @@ The kernels take structs of arrays, one thread per env: ``Robot`` (the shard's j
 
 import functools
 import typing
-from dataclasses import dataclass
+import warnings
+from dataclasses import InitVar, dataclass, fields
 from types import SimpleNamespace
 from typing import Any
 
 import warp as wp
 
-from ..settings.config import TaskConfig
+from ..settings.config import EnvConfig, TaskConfig
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -52,6 +53,15 @@ def params_of(config_class: type[TaskConfig], task: TaskConfig) -> Any:
     return params
 
 
+def step_settings(kernels: SimpleNamespace, cfg: EnvConfig) -> Any:
+    """The kernels' ``StepSettings`` of an env's settings: observation noise, divergence limit, time limit (steps)."""
+    settings = kernels.StepSettings()
+    settings.noise_std = float(cfg.randomization.obs_noise_std)
+    settings.divergence_limit = float(cfg.sim.divergence_limit)
+    settings.max_episode_length = int(cfg.max_episode_length)
+    return settings
+
+
 @dataclass(frozen=True)
 class TaskFunctions:
     """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order
@@ -61,16 +71,27 @@ class TaskFunctions:
 
     observe: Any
     """``(q: Joints, qd: Joints, p) -> Obs``: the observation of a joint state."""
-    evaluate: Any
+    reward_and_end: Any = None
     """``(q: Joints, qd: Joints, action: Actions, p) -> (reward: float, end: int)`` on the state after the physics
     step (``action`` already clipped to [-1, 1]); ``end`` is END_NONE or one of the task's codes (FIRST_TASK_END +
     i)."""
-    sample_reset: Any
+    sample_reset: Any = None
     """``(rng_state: wp.array(dtype=wp.uint32), env: int, p) -> (q: Joints, qd: Joints)``: a random start; advances
     ``rng_state[env]``."""
-    joint_forces: Any
+    joint_forces: Any = None
     """``(action: Actions, p, forces: Joints) -> Joints``: ``forces`` (zero on every joint) with the generalised force
     (N or N m) of an action written on the joints it drives."""
+    evaluate: InitVar[Any] = None
+    """The old name of ``reward_and_end``, for one more release (with a DeprecationWarning)."""
+
+    def __post_init__(self, evaluate: Any):
+        if evaluate is not None:
+            warnings.warn("TaskFunctions(evaluate=...) is now TaskFunctions(reward_and_end=...); the old name goes "
+                          "in a later release", DeprecationWarning, stacklevel=3)
+            object.__setattr__(self, "reward_and_end", evaluate)
+        missing = [field.name for field in fields(self) if getattr(self, field.name) is None]
+        if missing:
+            raise TypeError(f"TaskFunctions: missing {', '.join(missing)}")
 
 
 @wp.kernel
@@ -178,9 +199,9 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         reason = END_NONE
         if all_within(q, qd, settings.divergence_limit):
             o = noisy(fns.observe(q, qd, p), settings.noise_std, episodes.rng_state, env)
-            r, reason = fns.evaluate(q, qd, a, p)
+            r, reason = fns.reward_and_end(q, qd, a, p)
         else:
-            unused, reason = fns.evaluate(episodes.last_q[env], episodes.last_qd[env], a, p)
+            unused, reason = fns.reward_and_end(episodes.last_q[env], episodes.last_qd[env], a, p)
             if all_finite(q, qd):
                 wp.atomic_add(diverged_state_count, 0, 1)
                 if reason == END_NONE:

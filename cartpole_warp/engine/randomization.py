@@ -12,6 +12,7 @@ captured env step.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -196,7 +197,7 @@ def write_model(layout: Layout, physics: EnvPhysics, model: ModelFields):
     write_env(wp.tid(), layout, physics, model)
 
 
-class Physics:
+class PhysicalParams:
     """The per-env physical parameters of a batched env (SI units, persistent (N, roles) and (N,) arrays), their
     draws and their way into each shard's model and solver."""
 
@@ -291,9 +292,19 @@ class Physics:
         """Whether anything but observation noise is drawn."""
         return self.cfg.on and self.cfg != RandomizationConfig(at=self.cfg.at, obs_noise_std=self.cfg.obs_noise_std)
 
-    @property
-    def has_friction(self) -> bool:
-        return bool(self.cfg.joint_friction)
+    def friction_hook(self, shard, actuator_f: wp.array, role_dofs: wp.array) -> Callable[[], None] | None:
+        """What runs before each of the shard's solver steps where joint friction is randomized: the joints' forces =
+        ``actuator_f`` (the shard's rows) less their friction (``add_friction``); None where it is not."""
+        if not self.cfg.joint_friction:
+            return None
+        s = shard.scene
+
+        def add_joint_friction():
+            wp.launch(add_friction, dim=shard.num_envs,
+                      inputs=[s.dofs_per_env, role_dofs, actuator_f, shard.rows(self.friction), s.state_0.joint_qd],
+                      outputs=[s.control.joint_f], device=self.device)
+
+        return add_joint_friction
 
     def _shard_structs(self, shard) -> tuple[EnvPhysics, ModelFields]:
         rows, m = shard.rows, shard.scene.model

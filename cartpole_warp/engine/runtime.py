@@ -192,7 +192,7 @@ class ShardedStep:
 
     Whatever ``step_fn`` launches must only overwrite persistent arrays: a captured graph holds their pointers."""
 
-    def __init__(self, shards: list[Shard], step_fn: Callable[[Shard], None], order: streams.TorchOrder,
+    def __init__(self, shards: list[Shard], step_fn: Callable[[Shard], None], order: streams.StreamOrder,
                  capture: bool):
         self.shards, self.step_fn, self.order = shards, step_fn, order
         self.replay = None

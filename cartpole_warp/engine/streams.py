@@ -14,7 +14,23 @@ import torch
 import warp as wp
 
 
-class TorchOrder:
+def check_tensor(name: str, value: Any, shapes: tuple, dtype: torch.dtype, device: str) -> torch.Tensor:
+    """``value`` if it is a tensor of one of ``shapes``, of ``dtype``, on ``device``; else ValueError naming ``name``,
+    what was expected and what came."""
+    shape = " or ".join(str(tuple(s)) for s in shapes)
+    expected = f"a torch.Tensor of shape {shape}, dtype {dtype}, on {device}"
+    if not isinstance(value, torch.Tensor):
+        raise ValueError(f"{name}: expected {expected}; got {type(value).__name__}")
+    if tuple(value.shape) not in [tuple(s) for s in shapes]:
+        raise ValueError(f"{name}: expected {expected}; got shape {tuple(value.shape)}")
+    if value.dtype != dtype:
+        raise ValueError(f"{name}: expected {expected}; got dtype {value.dtype}")
+    if value.device != torch.device(device):
+        raise ValueError(f"{name}: expected {expected}; got device {value.device}")
+    return value
+
+
+class StreamOrder:
     """``with order:`` makes Warp work wait for pending torch work on entry and torch wait for the Warp work on exit
     (the current CUDA streams of both, which are one stream inside a capture; nothing to do on the CPU)."""
 

@@ -15,7 +15,7 @@ from ..engine.env import BatchedEnv
 from ..engine.streams import TorchGraph
 from .statistics import EpisodeStats, EpisodeSummary
 
-NO_LIMIT_STEPS = 1000
+STEPS_WITHOUT_TIME_LIMIT = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""
 Policy = Callable[[torch.Tensor], torch.Tensor]
 """``policy(obs (N, num_obs)) -> actions (N, num_actions)``, torch tensors on one device."""
@@ -126,8 +126,8 @@ def rollout(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int]
 
 
 def whole_episode_steps(env: BatchedEnv) -> int:
-    """Env steps that play every first episode to its end: the time limit, or NO_LIMIT_STEPS without one."""
-    return env.max_episode_length if env.cfg.task.has_time_limit else NO_LIMIT_STEPS
+    """Env steps that play every first episode to its end: the time limit, or STEPS_WITHOUT_TIME_LIMIT without one."""
+    return env.max_episode_length if env.cfg.task.has_time_limit else STEPS_WITHOUT_TIME_LIMIT
 
 
 def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:

@@ -72,6 +72,13 @@ MAX_SEED = 2**31 - 1 - 4096
 """The largest seed: an int32 once torchrun has added the rank."""
 Seed = Annotated[int, pydantic.Field(ge=0, le=MAX_SEED, strict=True), Number]
 """A non-negative int32 (the kernels take it as one; torchrun adds the rank)."""
+
+
+def check_seed(seed: Any) -> None:
+    """ValueError unless ``seed`` is a whole number in [0, MAX_SEED] (a bool is not)."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"seed: expected a whole number in [0, {MAX_SEED}] or None, got {seed!r}")
+
 Range = tuple[Finite, Finite]
 """(low, high): a uniform draw from [low, high]; low == high fixes the value."""
 Randomize = Literal["reset", "startup"]

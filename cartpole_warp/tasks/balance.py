@@ -12,7 +12,7 @@ import warp as wp
 from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from ..settings.config import Finite, NonNegative, Positive, require
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
+from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 POLE_FELL = wp.constant(FIRST_TASK_END + 1)
@@ -61,7 +61,7 @@ def observe(q: wp.vec2, qd: wp.vec2, p: Any):
 
 
 @wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
+def reward_and_end(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
     end = END_NONE
     if wp.abs(q[0]) > p.reset_dist_m:
         end = CART_OUT
@@ -106,7 +106,7 @@ class CartpoleBalanceEnv(CartTaskEnv):
     obs_mirror = (-1.0,) * 4
     stage = "cartpole.usda"
     task_ends = ("cart_out_of_range", "pole_fell")
-    functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset,
+    functions = TaskFunctions(observe=observe, reward_and_end=reward_and_end, sample_reset=sample_reset,
                               joint_forces=push_cart)
 
 

@@ -7,19 +7,19 @@ from typing import Any
 import warp as wp
 
 from . import SolvedRule, balance, register
-from .cartpole import sparse_reward
+from .cart_base import sparse_reward
 
 
 @wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
-    unused, end = balance.evaluate(q, qd, action, p)
+def reward_and_end(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
+    unused, end = balance.reward_and_end(q, qd, action, p)
     return sparse_reward(q), end
 
 
 class CartpoleBalanceSparseEnv(balance.CartpoleBalanceEnv):
     """``CartpoleBalanceEnv`` with reward ``cartpole.sparse_reward``: 1 in the band, 0 elsewhere and at the end."""
 
-    functions = dataclasses.replace(balance.CartpoleBalanceEnv.functions, evaluate=evaluate)
+    functions = dataclasses.replace(balance.CartpoleBalanceEnv.functions, reward_and_end=reward_and_end)
 
 
 register(dataclasses.replace(

@@ -16,7 +16,7 @@ import warp as wp
 from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from ..settings.config import Finite, Name, NonNegative, Positive, require
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
+from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
 TIP_FELL = wp.constant(FIRST_TASK_END + 1)
@@ -90,7 +90,7 @@ def observe(q: wp.vec3, qd: wp.vec3, p: Any):
 
 
 @wp.func
-def evaluate(q: wp.vec3, qd: wp.vec3, action: wp.types.vector(1, float), p: Any):
+def reward_and_end(q: wp.vec3, qd: wp.vec3, action: wp.types.vector(1, float), p: Any):
     along, height = tip(q, p)
     end = END_NONE
     if wp.abs(q[0]) > p.reset_dist_m:
@@ -145,7 +145,8 @@ class CartDoublePoleEnv(CartTaskEnv):
     stage = NEWTON_STAGE
     joint_roles = ("cart", "pole", "pole2")
     task_ends = ("cart_out_of_range", "tip_fell")
-    functions = TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=push_cart)
+    functions = TaskFunctions(observe=observe, reward_and_end=reward_and_end, sample_reset=sample_reset,
+                              joint_forces=push_cart)
 
 
 TASK = register(Task(

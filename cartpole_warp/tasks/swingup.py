@@ -13,7 +13,7 @@ import warp as wp
 from ..engine.kernels import END_NONE, TaskFunctions
 from ..settings.config import Finite, NonNegative, Positive
 from . import SolvedRule, Task, register
-from .cartpole import CartpoleConfig, CartTaskEnv, push_cart
+from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 
 @dataclass
@@ -79,7 +79,7 @@ def swingup_functions(num_poles: int) -> TaskFunctions:
         return o
 
     @func
-    def evaluate(q: Any, qd: Any, action: Any, p: Any):
+    def reward_and_end(q: Any, qd: Any, action: Any, p: Any):
         """upright (mean over the poles) * centered * small_control * small_velocity (of the slowest-scoring pole)."""
         upright, world, small_velocity = float(0.0), float(0.0), float(1.0)  # noqa: UP018 (changed by the loop)
         for k in range(num_poles):
@@ -106,7 +106,8 @@ def swingup_functions(num_poles: int) -> TaskFunctions:
         rng_state[env] = s
         return q, qd
 
-    return TaskFunctions(observe=observe, evaluate=evaluate, sample_reset=sample_reset, joint_forces=push_cart)
+    return TaskFunctions(observe=observe, reward_and_end=reward_and_end, sample_reset=sample_reset,
+                         joint_forces=push_cart)
 
 
 def swingup_obs_mirror(num_poles: int) -> tuple[float, ...]:

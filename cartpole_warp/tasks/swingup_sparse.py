@@ -8,18 +8,18 @@ import warp as wp
 
 from ..engine.kernels import END_NONE
 from . import SolvedRule, register, swingup
-from .cartpole import sparse_reward
+from .cart_base import sparse_reward
 
 
 @wp.func
-def evaluate(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
+def reward_and_end(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p: Any):
     return sparse_reward(q), END_NONE
 
 
 class CartpoleSwingupSparseEnv(swingup.CartpoleSwingupEnv):
     """``CartpoleSwingupEnv`` with reward ``cartpole.sparse_reward``: 1 in the band, else 0."""
 
-    functions = dataclasses.replace(swingup.CartpoleSwingupEnv.functions, evaluate=evaluate)
+    functions = dataclasses.replace(swingup.CartpoleSwingupEnv.functions, reward_and_end=reward_and_end)
 
 
 register(dataclasses.replace(
