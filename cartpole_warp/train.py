@@ -37,7 +37,7 @@ from .cli import (
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
-from .rl.config import TrainConfig, checked, train_config
+from .rl.config import TrainConfig, checked, gpu_settings, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
@@ -105,8 +105,8 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
 def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, TrainArgs]:
     """``resolve``, and the parsed arguments."""
     argv = with_default_value(argv, "--resume", "latest")
-    first = peek(argv, task=None, config=None, resume=None, checkpoint=None, log_dir="logs",
-                 **{"agent.experiment_name": None})
+    first = peek(argv, task=None, config=None, resume=None, checkpoint=None, log_dir="logs", device=None,
+                 **{"agent.experiment_name": None, "env.device": None})
     checkpoint = run_dir = None
     if (first.resume or first.checkpoint) and not asks_help(argv):
         if first.config:
@@ -123,7 +123,8 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
         if first.task and first.task != base.task:
             raise ConfigError(f"--task {first.task} cannot change the task of {run_dir} ({base.task})")
     else:
-        base = train_config(first.task or tasks.DEFAULT_TASK, first.config)
+        device = first.device or getattr(first, "env.device")
+        base = train_config(first.task or tasks.DEFAULT_TASK, first.config, device)
     cls = TrainArgs[type(base.env.task)]
     args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES)
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
@@ -199,6 +200,9 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
     print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
     print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
           flush=True)
+    if chosen := gpu_settings(training.cfg):
+        print(f"on a GPU the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
+              "(its CPU settings differ; a flag changes either)", flush=True)
     hooks = IterationHooks()
     if args.viewer == "viser":
         from .viz.web import TrainingView

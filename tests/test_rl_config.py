@@ -11,7 +11,7 @@ import pytest
 from rsl_rl.utils import resolve_callable
 
 from cartpole_warp import tasks
-from cartpole_warp.rl.config import RunnerConfig, train_config
+from cartpole_warp.rl.config import RunnerConfig, gpu_settings, train_config
 from cartpole_warp.rl.policies import to_rsl_rl
 from cartpole_warp.settings.config import ConfigError
 from cartpole_warp.settings.presets import load_preset, presets
@@ -125,13 +125,31 @@ def test_every_shipped_preset_applies_to_its_task_and_is_refused_by_the_others(p
                 train_config(name, preset)
 
 
-def test_the_gpu_swingup_preset_changes_only_the_mini_batches_and_the_evaluations_cadence():
-    default, gpu = train_config("cartpole-swingup"), train_config("cartpole-swingup", "swingup_gpu")
+def test_on_a_gpu_the_swingup_changes_only_the_mini_batches_and_the_evaluations_cadence():
+    default, gpu = train_config("cartpole-swingup"), train_config("cartpole-swingup", device="cuda:0")
     assert (gpu.agent.algorithm.num_mini_batches, gpu.eval.max_interval) == (4, 50)
     assert (default.agent.algorithm.num_mini_batches, default.eval.max_interval) == (8, 25)
     changed = dataclasses.replace(gpu, agent=dataclasses.replace(gpu.agent, algorithm=dataclasses.replace(
         gpu.agent.algorithm, num_mini_batches=8)), eval=dataclasses.replace(gpu.eval, max_interval=25))
     assert changed == default, "every other setting is the swing-up's"
+    assert train_config("cartpole-swingup", device="cpu") == default
+    assert gpu_settings(default) == {}
+
+
+def test_train_takes_the_gpu_settings_from_the_device_flag_and_a_flag_still_changes_them(tmp_path):
+    for device_flag in (["--device", "cuda:0"], ["--env.device=cuda"]):
+        cfg, _, _ = resolve(["--task", "cartpole-swingup", *device_flag, "--log-dir", str(tmp_path)])
+        assert gpu_settings(cfg) == {"agent.algorithm.num_mini_batches": 4, "eval.max_interval": 50}, device_flag
+    cfg, _, _ = resolve(["--task", "cartpole-swingup", "--device", "cuda", "--log-dir", str(tmp_path),
+                         "--agent.algorithm.num-mini-batches", "2"])
+    assert gpu_settings(cfg) == {"agent.algorithm.num_mini_batches": 2, "eval.max_interval": 50}
+    cfg, _, _ = resolve(["--task", "cartpole-swingup", "--log-dir", str(tmp_path)])
+    assert (cfg.agent.algorithm.num_mini_batches, cfg.eval.max_interval) == (8, 25)
+
+
+def test_the_retired_gpu_preset_says_where_its_settings_went():
+    with pytest.raises(ConfigError, match="preset 'swingup_gpu' is retired: the swing-up takes those settings on a"):
+        train_config("cartpole-swingup", "swingup_gpu")
 
 
 def test_runner_config_is_rsl_rl_train_cfg():

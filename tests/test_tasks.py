@@ -2,6 +2,7 @@
 unknown one, and a task defined outside the package (one module's worth: settings, Warp functions, env class,
 ``register``) trains, plays and reaches gymnasium with no machinery file touched."""
 
+import dataclasses
 import importlib
 import math
 from dataclasses import dataclass
@@ -203,3 +204,14 @@ def test_a_task_module_with_a_misspelt_default_fails_at_import_naming_the_task_a
     assert "unknown config key 'env.task.reset_pole_angel_rad'" in message
     assert "env.sim.decimation: " in message
     assert "typo-balance" not in tasks.names()
+
+
+@pytest.mark.parametrize("gpu_defaults, error", [
+    ({"agent": {"algorithm": {"num_mini_batch": 4}}}, "unknown config key 'agent.algorithm.num_mini_batch'"),
+    ({"env": {"num_envs": 8}}, "env settings do not depend on the device"),
+])
+def test_a_tasks_gpu_settings_are_checked_when_it_registers(gpu_defaults, error):
+    swingup = tasks.get("cartpole-swingup")
+    with pytest.raises(ConfigError, match=f"task 'gpu-typo': gpu_defaults.*{error}"):
+        tasks.register(dataclasses.replace(swingup, name="gpu-typo", gym_ids={}, gpu_defaults=gpu_defaults))
+    assert "gpu-typo" not in tasks.names()

@@ -69,20 +69,47 @@ class TrainConfig(RunSettings, Generic[TaskT]):
         return self
 
 
-def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None) -> TrainConfig:
+def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str | None = None) -> TrainConfig:
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
-    refuses a preset for another task), then the dataclass defaults, the task's and the preset's agent and run
-    settings (flags may still change it: ``validate`` after them)."""
+    refuses a preset for another task), then the dataclass defaults, the task's (with its ``gpu_defaults`` where
+    ``device``, else the env's, is a CUDA device) and the preset's agent and run settings (flags may still change
+    it: ``validate`` after them)."""
     preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
     env = tasks.env_config(task, preset, preset_data=preset_data)
     cls = TrainConfig[type(env.task)]
     base = cls(env=env, task=task)
     rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
     data = merge(dataclasses.asdict(base), rest)
+    if on_gpu(device or env.device):
+        data = merge(data, base.task_spec.gpu_defaults)
     if preset is not None:
         data = merge(data, overrides_dict({key: value for key, value in preset_data.items() if key != "env"},
                                           f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
+
+
+def on_gpu(device: str) -> bool:
+    """Whether ``device`` (a Warp/torch device name) is a GPU."""
+    return device.startswith("cuda")
+
+
+def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
+    """The settings the task chooses for a GPU (``Task.gpu_defaults``), by dotted name, with the values ``cfg`` has
+    (a flag may have changed them); {} where ``cfg`` runs on a CPU or the task chooses none."""
+    if not on_gpu(cfg.env.device):
+        return {}
+
+    def leaves(data: dict, prefix: str = "") -> list[str]:
+        return [name for key, value in data.items()
+                for name in (leaves(value, f"{prefix}{key}.") if isinstance(value, dict) else [f"{prefix}{key}"])]
+
+    def value(name: str) -> object:
+        node = cfg
+        for part in name.split("."):
+            node = getattr(node, part)
+        return node
+
+    return {name: value(name) for name in leaves(cfg.task_spec.gpu_defaults)}
 
 
 def load_train_config(data: dict, where: str) -> TrainConfig:
@@ -94,4 +121,4 @@ def load_train_config(data: dict, where: str) -> TrainConfig:
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",
-           "TrainConfig", "checked", "load_train_config", "train_config"]
+           "TrainConfig", "checked", "gpu_settings", "load_train_config", "train_config"]

@@ -93,6 +93,10 @@ def presets() -> list[str]:
     return sorted(p.stem for p in data_path("configs").glob("*.yaml"))
 
 
+RETIRED_PRESETS = {"swingup_gpu": "the swing-up takes those settings on a GPU on its own (--device cuda)"}
+"""Presets that are gone, and why."""
+
+
 def load_preset(preset: str, task: str | None = None, env_type: type | None = None) -> dict:
     """The overrides a preset holds, as a nested dict: a name under ``configs/`` or a path to a YAML file. ConfigError
     naming every unknown section or key and bad value (in ``env`` only where its type ``env_type``, the task's
@@ -101,6 +105,7 @@ def load_preset(preset: str, task: str | None = None, env_type: type | None = No
     path = Path(preset)
     if path.suffix not in (".yaml", ".yml"):
         path = data_path("configs", f"{preset}.yaml")
+        require(preset not in RETIRED_PRESETS, f"preset {preset!r} is retired: {RETIRED_PRESETS.get(preset)}")
         require(path.is_file(), f"unknown preset {preset!r}; known presets: {', '.join(presets())}")
     require(path.is_file(), f"config file {path} does not exist")
     try:

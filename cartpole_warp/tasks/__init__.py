@@ -43,6 +43,10 @@ class Task:
     defaults: dict = field(default_factory=dict)
     """Nested overrides of the training config (``env``, ``agent`` sections) that make this task's defaults, applied
     before a preset and the flags."""
+    gpu_defaults: dict = field(default_factory=dict)
+    """Overrides of ``defaults`` (``agent`` and run sections, no ``env``) where the run's device is a GPU: settings
+    whose best value differs by device (there a gradient step costs its kernel launches whatever its batch, and a small
+    evaluation as much as a large one; on a CPU both cost their samples). train.py names them in its first lines."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
 
@@ -59,6 +63,8 @@ def register(task: Task) -> Task:
         raise ValueError(f"task {task.name!r} is already registered")
     raise_config_errors(f"task {task.name!r}: defaults",
                         overrides_errors(task.defaults, EnvConfig[task.env_class.config_class]))
+    raise_config_errors(f"task {task.name!r}: gpu_defaults", overrides_errors(task.gpu_defaults)
+                        + ["env settings do not depend on the device"] * ("env" in task.gpu_defaults))
     _TASKS[task.name] = task
     return task
 

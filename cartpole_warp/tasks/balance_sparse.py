@@ -17,7 +17,7 @@ def reward_and_end(q: wp.vec2, qd: wp.vec2, action: wp.types.vector(1, float), p
 
 
 class CartpoleBalanceSparseEnv(balance.CartpoleBalanceEnv):
-    """``CartpoleBalanceEnv`` with reward ``cartpole.sparse_reward``: 1 in the band, 0 elsewhere and at the end."""
+    """``CartpoleBalanceEnv`` with reward ``cart_base.sparse_reward``: 1 in the band, 0 elsewhere and at the end."""
 
     functions = dataclasses.replace(balance.CartpoleBalanceEnv.functions, reward_and_end=reward_and_end)
 
