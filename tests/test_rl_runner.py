@@ -110,5 +110,5 @@ def test_a_run_that_will_take_hours_says_so_after_its_first_iteration(capsys):
     out = capsys.readouterr().out
     note = out.splitlines()[1]
     assert re.fullmatch(r"note: at this pace the 10000000 iterations of cartpole-balance take about \d+h\d\dm more on "
-                        r"cpu \(16 envs\): a GPU \(--device cuda\) is far faster \(docs/tasks.md: each task's measured "
-                        r"times\), or set fewer --max-iterations", note), out
+                        r"cpu \(16 envs\): a GPU \(--device cuda\) is far faster \(docs/results.md: each task's "
+                        r"measured times\), or set fewer --max-iterations", note), out

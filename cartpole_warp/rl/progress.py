@@ -84,4 +84,4 @@ class ProgressLine:
         """What to do about a run that will take hours here."""
         return (f"note: at this pace the {iterations} iterations of {self.cfg.task} take about "
                 f"{format_duration(eta)} more on {self.device} ({self.cfg.env.num_envs} envs): a GPU (--device cuda) "
-                "is far faster (docs/tasks.md: each task's measured times), or set fewer --max-iterations")
+                "is far faster (docs/results.md: each task's measured times), or set fewer --max-iterations")

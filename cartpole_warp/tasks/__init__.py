@@ -46,7 +46,9 @@ class Task:
     gpu_defaults: dict = field(default_factory=dict)
     """Overrides of ``defaults`` (``agent`` and run sections, no ``env``) where the run's device is a GPU: settings
     whose best value differs by device (there a gradient step costs its kernel launches whatever its batch, and a small
-    evaluation as much as a large one; on a CPU both cost their samples). train.py names them in its first lines."""
+    evaluation as much as a large one; on a CPU both cost their samples). train.py names them in its first lines. A
+    variant made with ``dataclasses.replace`` inherits them: give it its own (``{}``: none) unless measured with
+    them."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
 
