@@ -29,6 +29,7 @@ from .cli import (
     ViserArgs,
     asks_help,
     clean_errors,
+    expand_aliases,
     parse,
     peek,
     process_age_s,
@@ -105,8 +106,8 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
 def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, TrainArgs]:
     """``resolve``, and the parsed arguments."""
     argv = with_default_value(argv, "--resume", "latest")
-    first = peek(argv, task=None, config=None, resume=None, checkpoint=None, log_dir="logs", device=None,
-                 **{"agent.experiment_name": None, "env.device": None})
+    first = peek(expand_aliases(argv, ENV_ALIASES), task=None, config=None, resume=None, checkpoint=None,
+                 log_dir="logs", **{"agent.experiment_name": None, "env.device": None})
     checkpoint = run_dir = None
     if (first.resume or first.checkpoint) and not asks_help(argv):
         if first.config:
@@ -123,8 +124,7 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
         if first.task and first.task != base.task:
             raise ConfigError(f"--task {first.task} cannot change the task of {run_dir} ({base.task})")
     else:
-        device = first.device or getattr(first, "env.device")
-        base = train_config(first.task or tasks.DEFAULT_TASK, first.config, device)
+        base = train_config(first.task or tasks.DEFAULT_TASK, first.config, getattr(first, "env.device"))
     cls = TrainArgs[type(base.env.task)]
     args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES)
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
@@ -200,7 +200,7 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
     print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
     print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
           flush=True)
-    if chosen := gpu_settings(training.cfg):
+    if checkpoint is None and (chosen := gpu_settings(training.cfg)):  # a resumed run keeps its saved settings
         print(f"on a GPU the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
               "(its CPU settings differ; a flag changes either)", flush=True)
     hooks = IterationHooks()

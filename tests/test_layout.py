@@ -83,3 +83,13 @@ def test_a_task_written_with_the_old_evaluate_name_gets_its_reward_and_end():
                              joint_forces=functions.joint_forces) == functions
     with pytest.raises(TypeError, match="TaskFunctions: missing reward_and_end"):
         TaskFunctions(functions.observe, sample_reset=functions.sample_reset, joint_forces=functions.joint_forces)
+
+
+@pytest.mark.parametrize("module, old, new", [
+    ("evaluation.rollouts", "NO_LIMIT_STEPS", "STEPS_WITHOUT_TIME_LIMIT"),
+    ("engine.randomization", "Physics", "PhysicalParams"), ("engine.streams", "TorchOrder", "StreamOrder"),
+])
+def test_the_renamed_engine_and_evaluation_names_answer_for_a_release(module, old, new):
+    loaded = importlib.import_module(f"cartpole_warp.{module}")
+    with pytest.warns(DeprecationWarning, match=f"{module}.{old} is now {new}"):
+        assert getattr(loaded, old) is getattr(loaded, new)

@@ -129,8 +129,11 @@ def test_on_a_gpu_the_swingup_changes_only_the_mini_batches_and_the_evaluations_
     default, gpu = train_config("cartpole-swingup"), train_config("cartpole-swingup", device="cuda:0")
     assert (gpu.agent.algorithm.num_mini_batches, gpu.eval.max_interval) == (4, 50)
     assert (default.agent.algorithm.num_mini_batches, default.eval.max_interval) == (8, 25)
+    assert gpu.env.device == "cuda:0" and gpu_settings(gpu) == {"agent.algorithm.num_mini_batches": 4,
+                                                                 "eval.max_interval": 50}
     changed = dataclasses.replace(gpu, agent=dataclasses.replace(gpu.agent, algorithm=dataclasses.replace(
-        gpu.agent.algorithm, num_mini_batches=8)), eval=dataclasses.replace(gpu.eval, max_interval=25))
+        gpu.agent.algorithm, num_mini_batches=8)), eval=dataclasses.replace(gpu.eval, max_interval=25),
+        env=dataclasses.replace(gpu.env, device="cpu"))
     assert changed == default, "every other setting is the swing-up's"
     assert train_config("cartpole-swingup", device="cpu") == default
     assert gpu_settings(default) == {}
@@ -143,8 +146,9 @@ def test_train_takes_the_gpu_settings_from_the_device_flag_and_a_flag_still_chan
     cfg, _, _ = resolve(["--task", "cartpole-swingup", "--device", "cuda", "--log-dir", str(tmp_path),
                          "--agent.algorithm.num-mini-batches", "2"])
     assert gpu_settings(cfg) == {"agent.algorithm.num_mini_batches": 2, "eval.max_interval": 50}
-    cfg, _, _ = resolve(["--task", "cartpole-swingup", "--log-dir", str(tmp_path)])
-    assert (cfg.agent.algorithm.num_mini_batches, cfg.eval.max_interval) == (8, 25)
+    for cpu in ([], ["--device", "cuda", "--env.device", "cpu"]):  # the last of the two spellings counts, as in tyro
+        cfg, _, _ = resolve(["--task", "cartpole-swingup", "--log-dir", str(tmp_path), *cpu])
+        assert cfg.env.device == "cpu" and (cfg.agent.algorithm.num_mini_batches, cfg.eval.max_interval) == (8, 25)
 
 
 def test_the_retired_gpu_preset_says_where_its_settings_went():

@@ -6,7 +6,9 @@ The kernels take structs of arrays, one thread per env: ``Robot`` (the shard's j
 (each env's running episode), ``StepResults`` (what a step hands back) and ``StepSettings``.
 """
 
+import dataclasses
 import functools
+import sys
 import typing
 import warnings
 from dataclasses import InitVar, dataclass, fields
@@ -62,6 +64,15 @@ def step_settings(kernels: SimpleNamespace, cfg: EnvConfig) -> Any:
     return settings
 
 
+def caller_level() -> int:
+    """The ``stacklevel`` of a warning raised in a dataclass's ``__post_init__`` that names the code which built the
+    object, past the generated ``__init__`` and ``dataclasses.replace``."""
+    frame, level = sys._getframe(2), 2
+    while frame is not None and frame.f_code.co_filename in (__file__, "<string>", dataclasses.__file__):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
 @dataclass(frozen=True)
 class TaskFunctions:
     """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order
@@ -87,7 +98,7 @@ class TaskFunctions:
     def __post_init__(self, evaluate: Any):
         if evaluate is not None:
             warnings.warn("TaskFunctions(evaluate=...) is now TaskFunctions(reward_and_end=...); the old name goes "
-                          "in a later release", DeprecationWarning, stacklevel=3)
+                          "in a later release", DeprecationWarning, stacklevel=caller_level())
             object.__setattr__(self, "reward_and_end", evaluate)
         missing = [field.name for field in fields(self) if getattr(self, field.name) is None]
         if missing:

@@ -20,6 +20,7 @@ import numpy as np
 import warp as wp
 
 from ..settings.config import ConfigError, RandomizationConfig
+from ..settings.deprecation import renamed
 from .scene import Scene
 
 if TYPE_CHECKING:
@@ -418,3 +419,7 @@ def add_friction(dofs_per_env: int, role_dof: wp.array(dtype=wp.int32), actuator
     for r in range(friction.shape[1]):
         dof = env * dofs_per_env + role_dof[r]
         joint_f[dof] = actuator_f[env, r] - friction[env, r] * wp.tanh(joint_qd[dof] / FRICTION_VELOCITY)
+
+
+__getattr__ = renamed(__name__, {"Physics": "PhysicalParams"})
+"""The old name, for one more release."""

@@ -13,6 +13,8 @@ from typing import Any
 import torch
 import warp as wp
 
+from ..settings.deprecation import renamed
+
 
 def check_tensor(name: str, value: Any, shapes: tuple, dtype: torch.dtype, device: str) -> torch.Tensor:
     """``value`` if it is a tensor of one of ``shapes``, of ``dtype``, on ``device``; else ValueError naming ``name``,
@@ -133,3 +135,7 @@ class PhaseClock:
             return [b - a for a, b in zip(self._marks, self._marks[1:])]
         self._marks[-1].synchronize()
         return [a.elapsed_time(b) / 1e3 for a, b in zip(self._marks, self._marks[1:])]
+
+
+__getattr__ = renamed(__name__, {"TorchOrder": "StreamOrder"})
+"""The old name, for one more release."""

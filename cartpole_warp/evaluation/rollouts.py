@@ -13,6 +13,7 @@ import torch
 
 from ..engine.env import BatchedEnv
 from ..engine.streams import TorchGraph
+from ..settings.deprecation import renamed
 from .statistics import EpisodeStats, EpisodeSummary
 
 STEPS_WITHOUT_TIME_LIMIT = 1000
@@ -135,3 +136,7 @@ def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:
     ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved')."""
     steps = whole_episode_steps(run.env)
     return run(steps, seed=seed).summary(min(steps, run.env.max_episode_length))
+
+
+__getattr__ = renamed(__name__, {"NO_LIMIT_STEPS": "STEPS_WITHOUT_TIME_LIMIT"})
+"""The old name, for one more release."""

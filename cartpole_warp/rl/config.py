@@ -71,16 +71,16 @@ class TrainConfig(RunSettings, Generic[TaskT]):
 
 def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str | None = None) -> TrainConfig:
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
-    refuses a preset for another task), then the dataclass defaults, the task's (with its ``gpu_defaults`` where
-    ``device``, else the env's, is a CUDA device) and the preset's agent and run settings (flags may still change
+    refuses a preset for another task; on ``device`` where given), then the dataclass defaults, the task's (with its
+    ``gpu_defaults`` where the env's device is CUDA) and the preset's agent and run settings (flags may still change
     it: ``validate`` after them)."""
     preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
-    env = tasks.env_config(task, preset, preset_data=preset_data)
+    env = tasks.env_config(task, preset, preset_data=preset_data, device=device)
     cls = TrainConfig[type(env.task)]
     base = cls(env=env, task=task)
     rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
     data = merge(dataclasses.asdict(base), rest)
-    if on_gpu(device or env.device):
+    if on_gpu(env.device):
         data = merge(data, base.task_spec.gpu_defaults)
     if preset is not None:
         data = merge(data, overrides_dict({key: value for key, value in preset_data.items() if key != "env"},
