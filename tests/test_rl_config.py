@@ -152,7 +152,7 @@ def test_train_takes_the_gpu_settings_from_the_device_flag_and_a_flag_still_chan
 
 
 def test_the_retired_gpu_preset_says_where_its_settings_went():
-    with pytest.raises(ConfigError, match="preset 'swingup_gpu' is retired: the swing-up takes those settings on a"):
+    with pytest.raises(ConfigError, match="preset 'swingup_gpu' is retired: a task's settings for a GPU come with"):
         train_config("cartpole-swingup", "swingup_gpu")
 
 

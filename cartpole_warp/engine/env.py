@@ -185,7 +185,7 @@ class BatchedEnv(VectorSpaces, abc.ABC):
 
     def _simulate(self, shard: Shard):
         """``decimation`` solver steps, each after the joints' friction where it is randomized."""
-        friction = self.physics.friction_hook(shard, shard.rows(self.buffers.actuator_f), self._role_dofs)
+        friction = self.physics.friction_hook(shard, self.buffers.actuator_f, self._role_dofs)
         shard.scene.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation, friction)
 
     def physics_step(self, shard: Shard):

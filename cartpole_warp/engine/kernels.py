@@ -6,9 +6,7 @@ The kernels take structs of arrays, one thread per env: ``Robot`` (the shard's j
 (each env's running episode), ``StepResults`` (what a step hands back) and ``StepSettings``.
 """
 
-import dataclasses
 import functools
-import sys
 import typing
 import warnings
 from dataclasses import InitVar, dataclass, fields
@@ -18,6 +16,7 @@ from typing import Any
 import warp as wp
 
 from ..settings.config import EnvConfig, TaskConfig
+from ..settings.deprecation import caller_level
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -62,15 +61,6 @@ def step_settings(kernels: SimpleNamespace, cfg: EnvConfig) -> Any:
     settings.divergence_limit = float(cfg.sim.divergence_limit)
     settings.max_episode_length = int(cfg.max_episode_length)
     return settings
-
-
-def caller_level() -> int:
-    """The ``stacklevel`` of a warning raised in a dataclass's ``__post_init__`` that names the code which built the
-    object, past the generated ``__init__`` and ``dataclasses.replace``."""
-    frame, level = sys._getframe(2), 2
-    while frame is not None and frame.f_code.co_filename in (__file__, "<string>", dataclasses.__file__):
-        frame, level = frame.f_back, level + 1
-    return level
 
 
 @dataclass(frozen=True)

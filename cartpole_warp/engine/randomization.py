@@ -295,14 +295,15 @@ class PhysicalParams:
 
     def friction_hook(self, shard, actuator_f: wp.array, role_dofs: wp.array) -> Callable[[], None] | None:
         """What runs before each of the shard's solver steps where joint friction is randomized: the joints' forces =
-        ``actuator_f`` (the shard's rows) less their friction (``add_friction``); None where it is not."""
+        ``actuator_f`` (every env's) less their friction (``add_friction``); None where it is not."""
         if not self.cfg.joint_friction:
             return None
         s = shard.scene
 
         def add_joint_friction():
             wp.launch(add_friction, dim=shard.num_envs,
-                      inputs=[s.dofs_per_env, role_dofs, actuator_f, shard.rows(self.friction), s.state_0.joint_qd],
+                      inputs=[s.dofs_per_env, role_dofs, shard.rows(actuator_f), shard.rows(self.friction),
+                              s.state_0.joint_qd],
                       outputs=[s.control.joint_f], device=self.device)
 
         return add_joint_friction

@@ -1,12 +1,23 @@
 """Renamed public names and moved modules: the old one still works for a release, with a ``DeprecationWarning`` naming
 the new one."""
 
+import dataclasses
 import importlib
 import importlib.abc
 import importlib.util
 import sys
 import warnings
 from collections.abc import Callable
+
+
+def caller_level() -> int:
+    """The ``stacklevel`` of a warning raised in a dataclass's ``__post_init__`` that names the code which built the
+    object, past the generated ``__init__`` and ``dataclasses.replace``."""
+    frame, level = sys._getframe(2), 2
+    while frame is not None and (frame.f_code.co_filename == dataclasses.__file__
+                                 or (frame.f_code.co_filename, frame.f_code.co_name) == ("<string>", "__init__")):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def renamed(module: str, names: dict[str, str]) -> Callable[[str], object]:

@@ -93,7 +93,7 @@ def presets() -> list[str]:
     return sorted(p.stem for p in data_path("configs").glob("*.yaml"))
 
 
-RETIRED_PRESETS = {"swingup_gpu": "the swing-up takes those settings on a GPU on its own (--device cuda)"}
+RETIRED_PRESETS = {"swingup_gpu": "a task's settings for a GPU come with the task now, taken where --device is cuda"}
 """Presets that are gone, and why."""
 
 
