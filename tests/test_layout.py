@@ -46,7 +46,7 @@ def test_the_root_holds_the_programs_and_the_face():
     modules = sorted(p.stem for p in root.glob("*.py"))
     assert modules == ["__init__", "cli", "play", "train", "warmup"]
     assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == {
-        "engine", "evaluation", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
+        "engine", "evaluation", "gradients", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
 
 
 @pytest.mark.parametrize("name", ["load_policy", "NullLogWriter"])

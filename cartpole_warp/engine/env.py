@@ -95,8 +95,8 @@ class BatchedEnv(VectorSpaces, abc.ABC):
         """Names of the ``end_reason`` codes, by code."""
         self._kernels = build_kernels(self.functions, self.config_class, len(self.joint_roles), self.num_actions,
                                       self.num_obs, f"{type(self).__module__}.{type(self).__qualname__}.kernels")
-        stage = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
-                 else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
+        stage = self.stage_path = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
+                                   else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
         cfg.randomization.validate(self.joint_roles)
         self.observations = observations_of(cfg.camera, cfg.num_envs, self.device)
         """What the policy observes: the task's state or camera frames (``engine.observations``)."""

@@ -226,7 +226,8 @@ class PhysicalParams:
         self.actuator_scale = wp.full(n, 1.0, dtype=float, device=device)
         self.gravity = wp.full(n, self.gravity_m_s2, dtype=float, device=device)
         self.delay = wp.zeros(n, dtype=wp.int32, device=device)
-        self._layout = self._make_layout(scene)
+        self.layout = self._make_layout(scene)
+        """Where each role's values sit in a scene of this env's stage and env count, and the stage's values."""
         self._ranges = self._make_ranges()
         flags = 0
         if cfg.mass_scale or cfg.com_offset_m:
@@ -326,14 +327,14 @@ class PhysicalParams:
         physics, model = self._shard_structs(shard)
         wp.launch(draw_physics, dim=shard.num_envs,
                   inputs=[int(ended is None), shard.rows(ended if ended is not None else self.delay), self._ranges,
-                          self._layout],
+                          self.layout],
                   outputs=[shard.rows(rng_state), physics, model], device=self.device)
         self._notify(shard, self.model_flags)
 
     def write(self, shard):
         """Every parameter of the shard's envs into its model; its solver told."""
         physics, model = self._shard_structs(shard)
-        wp.launch(write_model, dim=shard.num_envs, inputs=[self._layout, physics], outputs=[model],
+        wp.launch(write_model, dim=shard.num_envs, inputs=[self.layout, physics], outputs=[model],
                   device=self.device)
         self._notify(shard, self.all_model_flags)
 

@@ -191,8 +191,10 @@ def set_gradients(solver: str, gradients: bool):
             wp.set_module_options(options, module=module)
 
 
-def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints: list[JointRole]) -> Scene:
-    """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize and make the solver."""
+def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints: list[JointRole],
+                requires_grad: bool = False) -> Scene:
+    """Load the stage, replicate it ``num_envs`` times into separate worlds, finalize (with gradient arrays where
+    ``requires_grad``) and make the solver."""
     import newton
 
     init_warp()
@@ -201,7 +203,7 @@ def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints:
     builder = newton.ModelBuilder()
     try:
         builder.replicate(robot, copy_count=num_envs)
-        model = builder.finalize(device=device)
+        model = builder.finalize(device=device, requires_grad=requires_grad)
     except MemoryError:
         raise ConfigError(f"not enough memory for {num_envs:,} envs (about {num_envs * BYTES_PER_ENV / 1e9:,.1f} GB "
                           "while building them): use fewer") from None

@@ -1,0 +1,1 @@
+"""Gradients through the simulator: differentiable rollouts of a state task (``rollout.DifferentiableRollout``)."""

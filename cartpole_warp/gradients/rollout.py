@@ -1,0 +1,348 @@
+"""``DifferentiableRollout``: H env steps of a state task's N envs as torch operations whose gradients reach the
+initial joint states, the actions (and through them a policy's parameters) and the physical parameters.
+
+    env = cartpole_warp.tasks.make("cartpole-balance", num_envs=8, sim={"gradients": True})
+    rollout = DifferentiableRollout(env, horizon=60)
+    params = rollout.stage_params(requires_grad=True)      # {"pole_mass_kg": (N,), ...}: the stage's values
+    out = rollout(q0, qd0, policy=actor, params=params)    # or actions=(H, N, num_actions)
+    out.rewards.sum().backward()                           # grads on q0, qd0, actor's parameters, params
+
+Each env step is one ``torch.autograd.Function`` around a ``wp.Tape`` of the step's kernels: the task's joint forces
+of the clipped action (times ``actuator_scale``), each joint's friction before every physics step, ``decimation``
+steps of Newton's SolverFeatherstone, then the task's reward and observation of the state after them. Featherstone
+keeps its mass matrix and other scratch arrays on the solver and overwrites them at every step, so each physics step
+of the horizon has a solver of its own (a tape through one reused solver reads the last step's arrays backwards), and
+the bodies' spatial inertias, which a solver derives from the masses when it is made, are derived again on the tape
+from the parameters. Ends of episodes (termination, the time limit) are not applied: a rollout runs its H steps.
+The model is the env's stage, built again with gradients (``sim.gradients``: Newton's kernels with their adjoints);
+the env's own kernels stay adjoint-free, and training never builds this.
+"""
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import torch
+import warp as wp
+
+from ..engine.env import BatchedEnv
+from ..engine.kernels import TaskFunctions, kernel_params, params_of
+from ..engine.randomization import FRICTION_VELOCITY, EnvPhysics, Layout, ModelFields, write_env
+from ..engine.scene import build_scene
+
+
+@dataclass
+class Trajectory:
+    """A rollout's tensors: joint positions and velocities (H + 1, N, joints) in the task's role order (m or rad, m/s
+    or rad/s), observations (H + 1, N, num_obs), the actions applied (H, N, num_actions, before clipping) and the
+    rewards (H, N) of each step."""
+
+    q: torch.Tensor
+    qd: torch.Tensor
+    obs: torch.Tensor
+    actions: torch.Tensor
+    rewards: torch.Tensor
+
+
+@functools.cache
+def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joints: int, num_actions: int,
+                           num_obs: int, name: str) -> Any:
+    """A task's kernels for this path, with adjoints, in the Warp module ``name``."""
+    fns = functions
+    Joints = wp.types.vector(num_joints, float)
+    Actions = wp.types.vector(num_actions, float)
+    Params = kernel_params(config_class)
+    kernel = functools.partial(wp.kernel, module=name, enable_backward=True)
+
+    @kernel
+    def write_physics(layout: Layout, physics: EnvPhysics, model: ModelFields):
+        write_env(wp.tid(), layout, physics, model)
+
+    @kernel
+    def set_joints(q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), role_dofs: wp.array(dtype=int),
+                   dofs_per_env: int, joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float)):
+        env = wp.tid()
+        for r in range(num_joints):
+            joint_q[env * dofs_per_env + role_dofs[r]] = q[env, r]
+            joint_qd[env * dofs_per_env + role_dofs[r]] = qd[env, r]
+
+    @kernel
+    def actuate(p: Params, actions: wp.array2d(dtype=float), actuator_scale: wp.array(dtype=float),
+                forces: wp.array2d(dtype=float)):
+        env = wp.tid()
+        a = Actions()
+        for i in range(num_actions):
+            a[i] = wp.clamp(actions[env, i], -1.0, 1.0)
+        f = fns.joint_forces(a, p, Joints()) * actuator_scale[env]
+        for r in range(num_joints):
+            forces[env, r] = f[r]
+
+    @kernel
+    def add_friction(forces: wp.array2d(dtype=float), friction: wp.array2d(dtype=float),
+                     role_dofs: wp.array(dtype=int), dofs_per_env: int, joint_qd: wp.array(dtype=float),
+                     joint_f: wp.array(dtype=float)):
+        env = wp.tid()
+        for r in range(num_joints):
+            dof = env * dofs_per_env + role_dofs[r]
+            joint_f[dof] = forces[env, r] - friction[env, r] * wp.tanh(joint_qd[dof] / FRICTION_VELOCITY)
+
+    @kernel
+    def read_step(p: Params, joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
+                  role_dofs: wp.array(dtype=int), dofs_per_env: int, actions: wp.array2d(dtype=float),
+                  q_out: wp.array2d(dtype=float), qd_out: wp.array2d(dtype=float), obs: wp.array2d(dtype=float),
+                  rewards: wp.array(dtype=float)):
+        env = wp.tid()
+        q, qd, a = Joints(), Joints(), Actions()
+        for r in range(num_joints):
+            q[r] = joint_q[env * dofs_per_env + role_dofs[r]]
+            qd[r] = joint_qd[env * dofs_per_env + role_dofs[r]]
+            q_out[env, r] = q[r]
+            qd_out[env, r] = qd[r]
+        for i in range(num_actions):
+            a[i] = wp.clamp(actions[env, i], -1.0, 1.0)
+        reward, _end = fns.reward_and_end(q, qd, a, p)
+        rewards[env] = reward
+        o = fns.observe(q, qd, p)
+        for i in range(num_obs):
+            obs[env, i] = o[i]
+
+    @kernel
+    def observe(p: Params, q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), obs: wp.array2d(dtype=float)):
+        env = wp.tid()
+        qv, qdv = Joints(), Joints()
+        for r in range(num_joints):
+            qv[r] = q[env, r]
+            qdv[r] = qd[env, r]
+        o = fns.observe(qv, qdv, p)
+        for i in range(num_obs):
+            obs[env, i] = o[i]
+
+    return SimpleNamespace(write_physics=write_physics, set_joints=set_joints, actuate=actuate,
+                           add_friction=add_friction, read_step=read_step, observe=observe)
+
+
+def zeros(shape: tuple, device: str, dtype=float) -> wp.array:
+    return wp.zeros(shape, dtype=dtype, device=device, requires_grad=True)
+
+
+class EnvStep:
+    """The arrays, states and solvers of one env step of the horizon (its ``decimation`` physics steps)."""
+
+    def __init__(self, rollout: "DifferentiableRollout"):
+        import newton
+
+        r, n, dev = rollout, rollout.num_envs, rollout.device
+        j, a = r.num_joints, r.num_actions
+        self.q, self.qd, self.actions = zeros((n, j), dev), zeros((n, j), dev), zeros((n, a), dev)
+        self.forces = zeros((n, j), dev)
+        self.q_out, self.qd_out = zeros((n, j), dev), zeros((n, j), dev)
+        self.obs, self.rewards = zeros((n, r.num_obs), dev), zeros((n,), dev)
+        model = r.model
+        self.states = [model.state(requires_grad=True) for _ in range(r.decimation + 1)]
+        self.controls = [model.control() for _ in range(r.decimation)]
+        self.solvers = [newton.solvers.SolverFeatherstone(model, angular_damping=0.0)
+                        for _ in range(r.decimation)]
+        interval = r.mass_matrix_interval
+        for i, solver in enumerate(self.solvers):
+            # the spatial inertias the rollout derives on its tape; the mass matrix and its factors of the physics
+            # step that computed them last, as the env's solver reuses them (sim.mass_matrix_interval)
+            solver.body_I_m, solver.body_X_com = r.inertia_solver.body_I_m, r.inertia_solver.body_X_com
+            solver.update_mass_matrix_interval = interval
+            if i % interval:
+                source = self.solvers[i - i % interval]
+                solver.M, solver.J, solver.P, solver.H, solver.L = (source.M, source.J, source.P, source.H,
+                                                                    source.L)
+        self.tape: wp.Tape | None = None
+
+    def run(self, rollout: "DifferentiableRollout"):
+        """The step on a new tape: ``q``, ``qd``, ``actions`` in; ``q_out``, ``qd_out``, ``obs``, ``rewards`` out."""
+        r, k, dev, n = rollout, rollout.kernels, rollout.device, rollout.num_envs
+        dofs = r.dofs_per_env
+        self.tape = wp.Tape()
+        with self.tape:
+            first = self.states[0]
+            wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.role_dofs, dofs],
+                      outputs=[first.joint_q, first.joint_qd], device=dev)
+            wp.launch(k.actuate, n, inputs=[r.params, self.actions, r.actuator_scale], outputs=[self.forces],
+                      device=dev)
+            for i, solver in enumerate(self.solvers):
+                state, control = self.states[i], self.controls[i]
+                wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.role_dofs, dofs, state.joint_qd],
+                          outputs=[control.joint_f], device=dev)
+                solver._step = i % r.mass_matrix_interval  # 0: compute the mass matrix, else reuse it
+                solver.step(state, self.states[i + 1], control, None, r.physics_dt)
+            last = self.states[-1]
+            wp.launch(k.read_step, n, inputs=[r.params, last.joint_q, last.joint_qd, r.role_dofs, dofs, self.actions],
+                      outputs=[self.q_out, self.qd_out, self.obs, self.rewards], device=dev)
+
+
+def as_warp(array: wp.array, tensor: torch.Tensor):
+    wp.to_torch(array).copy_(tensor.detach().to(torch.float32))
+
+
+def grad_of(array: wp.array) -> torch.Tensor:
+    return wp.to_torch(array.grad).clone()
+
+
+class PhysicsFunction(torch.autograd.Function):
+    """The physical parameters into the model and the spatial inertias derived from them, on a tape; its output, a
+    token, is an input of every step, so that its backward runs after theirs (whose tapes add to the model's grads)."""
+
+    @staticmethod
+    def forward(ctx, rollout, mass, com, damping, friction, actuator_scale, gravity):
+        ctx.rollout = rollout
+        for array, tensor in zip(rollout.physics_arrays, (mass, com, damping, friction, actuator_scale, gravity)):
+            as_warp(array, tensor)
+        rollout.physics_tape = wp.Tape()
+        with rollout.physics_tape:
+            wp.launch(rollout.kernels.write_physics, rollout.num_envs, inputs=[rollout.layout, rollout.env_physics],
+                      outputs=[rollout.model_fields], device=rollout.device)
+            rollout.inertia_solver._update_body_inertial_buffers()
+        return torch.zeros((), device=mass.device, requires_grad=True)
+
+    @staticmethod
+    def backward(ctx, _token_grad):
+        rollout = ctx.rollout
+        rollout.physics_tape.backward()
+        return (None, *(grad_of(array) for array in rollout.physics_arrays))
+
+
+class StepFunction(torch.autograd.Function):
+    """One ``EnvStep``: (token, q, qd, actions) -> (q', qd', obs', reward)."""
+
+    @staticmethod
+    def forward(ctx, rollout, step, token, q, qd, actions):
+        ctx.rollout, ctx.step = rollout, step
+        as_warp(step.q, q)
+        as_warp(step.qd, qd)
+        as_warp(step.actions, actions)
+        step.run(rollout)
+        return tuple(wp.to_torch(a).clone() for a in (step.q_out, step.qd_out, step.obs, step.rewards))
+
+    @staticmethod
+    def backward(ctx, q_grad, qd_grad, obs_grad, reward_grad):
+        step = ctx.step
+        for array, grad in zip((step.q_out, step.qd_out, step.obs, step.rewards), (q_grad, qd_grad, obs_grad,
+                                                                                  reward_grad)):
+            wp.to_torch(array.grad).copy_(grad)
+        step.tape.backward()
+        token_grad = torch.zeros((), device=q_grad.device)
+        return None, None, token_grad, grad_of(step.q), grad_of(step.qd), grad_of(step.actions)
+
+
+class ObserveFunction(torch.autograd.Function):
+    """The task's observation of joint states (N, joints) -> (N, num_obs)."""
+
+    @staticmethod
+    def forward(ctx, rollout, q, qd):
+        ctx.rollout = rollout
+        as_warp(rollout.q0, q)
+        as_warp(rollout.qd0, qd)
+        rollout.observe_tape = wp.Tape()
+        with rollout.observe_tape:
+            wp.launch(rollout.kernels.observe, rollout.num_envs, inputs=[rollout.params, rollout.q0, rollout.qd0],
+                      outputs=[rollout.obs0], device=rollout.device)
+        return wp.to_torch(rollout.obs0).clone()
+
+    @staticmethod
+    def backward(ctx, obs_grad):
+        rollout = ctx.rollout
+        wp.to_torch(rollout.obs0.grad).copy_(obs_grad)
+        rollout.observe_tape.backward()
+        return None, grad_of(rollout.q0), grad_of(rollout.qd0)
+
+
+class DifferentiableRollout:
+    """``horizon`` env steps of ``env``'s task for its ``num_envs`` envs, differentiable (module docstring). ``env``:
+    a state task's env on the CPU or a GPU, built with ``sim={"gradients": True}`` and SolverFeatherstone; only its
+    config, task functions and stage are used (its own buffers are not touched)."""
+
+    def __init__(self, env: BatchedEnv, horizon: int):
+        cfg = env.cfg
+        if cfg.sim.solver != "featherstone" or not cfg.sim.gradients:
+            raise ValueError("a differentiable rollout needs an env built with SolverFeatherstone and "
+                             "sim={'gradients': True} (Newton's kernels with their adjoints); got "
+                             f"sim.solver={cfg.sim.solver!r}, sim.gradients={cfg.sim.gradients}")
+        if env.sees_images:
+            raise ValueError("a differentiable rollout runs state tasks (the renderer has no adjoint); "
+                             f"{type(env).__name__} observes camera frames")
+        if horizon < 1:
+            raise ValueError(f"horizon must be >= 1 env step, got {horizon}")
+        self.num_envs, self.device, self.horizon = env.num_envs, env.device, horizon
+        self.roles = env.joint_roles
+        self.num_joints, self.num_actions, self.num_obs = len(self.roles), env.num_actions, env.num_obs
+        self.decimation, self.physics_dt = cfg.sim.decimation, cfg.sim.physics_dt
+        self.mass_matrix_interval = cfg.sim.mass_matrix_interval
+        self.kernels = differentiable_kernels(env.functions, env.config_class, self.num_joints, self.num_actions,
+                                              self.num_obs, f"{type(env).__module__}.{type(env).__qualname__}.grad")
+        self.params = params_of(env.config_class, cfg.task)
+        scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
+                            requires_grad=True)
+        self.model, self.dofs_per_env = scene.model, scene.dofs_per_env
+        self.role_dofs = wp.array(scene.role_dofs, dtype=int, device=self.device)
+        self.inertia_solver = scene.solver
+        self.physical = env.physics
+        self.layout = env.physics.layout  # the same stage and env count: the same places
+        n, roles, dev = self.num_envs, self.num_joints, self.device
+        self.mass, self.com, self.damping, self.friction = (zeros((n, roles), dev) for _ in range(4))
+        self.actuator_scale, self.gravity = zeros((n,), dev), zeros((n,), dev)
+        self.physics_arrays = (self.mass, self.com, self.damping, self.friction, self.actuator_scale, self.gravity)
+        self.env_physics = EnvPhysics()
+        p = self.env_physics
+        p.mass, p.com, p.damping, p.friction = self.mass, self.com, self.damping, self.friction
+        p.actuator_scale, p.gravity, p.delay = self.actuator_scale, self.gravity, wp.zeros(n, dtype=wp.int32,
+                                                                                           device=dev)
+        m, fields = self.model, ModelFields()
+        fields.body_mass, fields.body_inv_mass, fields.body_com = m.body_mass, m.body_inv_mass, m.body_com
+        fields.body_inertia, fields.body_inv_inertia = m.body_inertia, m.body_inv_inertia
+        fields.joint_damping, fields.gravity = m.joint_damping, m.gravity
+        self.model_fields = fields
+        self.q0, self.qd0, self.obs0 = zeros((n, roles), dev), zeros((n, roles), dev), zeros((n, self.num_obs), dev)
+        self.steps = [EnvStep(self) for _ in range(horizon)]
+        self.physics_tape = self.observe_tape = None
+        self.parameter_names = [name for name in env.physics.settable() if name != "action_delay_steps"]
+        """The physical parameters a rollout takes (``stage_params``' names): per joint role its body's mass and
+        centre of mass, the joint's damping and friction; the actuator scale and gravity."""
+
+    def stage_params(self, requires_grad: bool = False) -> dict[str, torch.Tensor]:
+        """The stage's physical parameters, (N,) float32 tensors on the device, by name."""
+        values = self.physical.stage_values()
+        return {name: values[name].to(self.device, torch.float32).expand(self.num_envs).clone()
+                .requires_grad_(requires_grad) for name in self.parameter_names}
+
+    def _physics_tensors(self, params: dict[str, torch.Tensor]) -> list[torch.Tensor]:
+        unknown = sorted(set(params) - set(self.parameter_names))
+        if unknown:
+            raise ValueError(f"unknown physical parameters {unknown}; a rollout takes {self.parameter_names}")
+        full = self.stage_params() | params
+
+        def per_role(suffix: str) -> torch.Tensor:
+            return torch.stack([full[next(n for n in self.parameter_names if n.startswith(f"{role}_{suffix}"))]
+                                for role in self.roles], dim=1)
+
+        return [per_role("mass"), per_role("com"), per_role("damping"), per_role("friction"),
+                full["actuator_scale"], full["gravity_m_s2"]]
+
+    def __call__(self, q0: torch.Tensor, qd0: torch.Tensor, actions: torch.Tensor | None = None,
+                 policy: Callable[[torch.Tensor], torch.Tensor] | None = None,
+                 params: dict[str, torch.Tensor] | None = None) -> Trajectory:
+        """Run the horizon from joint states ``q0``, ``qd0`` (N, joints) under ``actions`` (H, N, num_actions) or
+        ``policy(obs) -> actions`` with ``params`` (by name, (N,) each; the stage's where not given). Backward through
+        the result before the next call: each step's tape and arrays are reused."""
+        if (actions is None) == (policy is None):
+            raise ValueError("give actions (H, N, num_actions) or a policy, not both")
+        for tape in (self.physics_tape, self.observe_tape, *(step.tape for step in self.steps)):
+            if tape is not None:
+                tape.zero()
+        token = PhysicsFunction.apply(self, *self._physics_tensors(params or {}))
+        q, qd = q0, qd0
+        obs = ObserveFunction.apply(self, q, qd)
+        qs, qds, observations, applied, rewards = [q], [qd], [obs], [], []
+        for t, step in enumerate(self.steps):
+            action = actions[t] if actions is not None else policy(obs)
+            q, qd, obs, reward = StepFunction.apply(self, step, token, q, qd, action)
+            qs.append(q), qds.append(qd), observations.append(obs), applied.append(action), rewards.append(reward)
+        return Trajectory(torch.stack(qs), torch.stack(qds), torch.stack(observations), torch.stack(applied),
+                          torch.stack(rewards))
