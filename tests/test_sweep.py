@@ -2,6 +2,7 @@
 process."""
 
 
+import pytest
 import torch
 
 from cartpole_warp.train import resolve
@@ -40,3 +41,16 @@ def test_a_sweep_in_one_process_repeats_a_seed_exactly_and_plays_it(tmp_path, ca
     first, second = (torch.load(path, weights_only=False) for path in checkpoints)
     for name, value in first["actor_state_dict"].items():
         assert torch.equal(value, second["actor_state_dict"][name]), name
+
+
+@pytest.mark.parametrize("variant, option", [("num-envs=16384", "--num-envs"),
+                                             ("agent.max-iterations=5", "--max-iterations"),
+                                             ("env.seed=3 agent.algorithm.gamma=0.995", "--seeds")])
+def test_a_variant_that_sets_a_flag_the_sweep_sets_is_refused_with_the_sweeps_option(variant, option, capsys):
+    from cartpole_warp.tools.sweep import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--variants", variant, "--seeds", "0"])
+    assert stop.value.code == 2
+    error = capsys.readouterr().err
+    assert "is set by the sweep for every run" in error and option in error

@@ -94,6 +94,15 @@ class RunResult:
     """The failed command's last output lines (the sweep goes on with the next run)."""
 
 
+SWEEP_FLAGS = {"task": "--task", "seed": "--seeds", "env.seed": "--seeds", "device": "--device",
+               "env.device": "--device", "num-envs": "--num-envs", "env.num-envs": "--num-envs",
+               "max-iterations": "--max-iterations", "agent.max-iterations": "--max-iterations",
+               "logger": None, "agent.logger": None, "log-dir": "--log-dir", "stop-when-solved": "--stop-when-solved",
+               "no-stop-when-solved": "--no-stop-when-solved"}
+"""train.py flags the sweep sets for every run (after a variant's, so they would win): a variant may not set them;
+the value names the sweep's own option."""
+
+
 def variant_flags(variant: str) -> list[str]:
     """train.py flags from ``"name=value name=v1,v2"``."""
     flags = []
@@ -225,6 +234,11 @@ def main(argv: list[str] | None = None) -> int:
         require(args.num_envs >= 1, f"--num-envs must be >= 1, got {args.num_envs}")
         require(args.max_iterations is None or args.max_iterations >= 1,
                 f"--max-iterations must be >= 1, got {args.max_iterations}")
+        for variant in args.variants:
+            for name in (pair.partition("=")[0] for pair in shlex.split(variant)):
+                require(name not in SWEEP_FLAGS,
+                        f"--variants {variant!r}: {name} is set by the sweep for every run"
+                        + (f" (use the sweep's {SWEEP_FLAGS[name]})" if SWEEP_FLAGS[name] else ""))
     print(seed_table_header(args.task), flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)
