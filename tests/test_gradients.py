@@ -41,7 +41,9 @@ def test_gradients_equal_finite_differences(task):
         return ((out.rewards.double() * weights[0]).sum() + (out.q[-1].double() * weights[1]).sum()
                 + (out.qd[-1].double() * weights[2]).sum())
 
-    stage = rollout.stage_params()
+    # friction's tanh(velocity / 0.01) turns within a finite difference's step where a joint stops: the physics is
+    # differentiated at zero friction (smooth), with every other parameter off the stage's
+    stage = physics_per_env(rollout, friction=False)
     inputs = {"q0": q0, "qd0": qd0, "actions": actions, **stage}
     leaves = {name: value.clone().requires_grad_() for name, value in inputs.items()}
     params = {name: leaves[name] for name in stage}
@@ -54,31 +56,64 @@ def test_gradients_equal_finite_differences(task):
             return loss(values["q0"], values["qd0"], values["actions"],
                         {k: values[k] for k in stage}).item()
 
-    checks = [("q0", i) for i in range(rollout.num_joints)] + [("qd0", i) for i in range(rollout.num_joints)]
-    checks += [("actions", 0), ("actions", 2 * (HORIZON // 2)), ("actions", 2 * (HORIZON - 1))]
-    checks += [(name, 0) for name in stage]
+    entries = 2 * rollout.num_joints  # both envs' joints
+    checks = [("q0", i) for i in range(entries)] + [("qd0", i) for i in range(entries)]
+    checks += [("actions", 0), ("actions", 2 * (HORIZON // 2) + 1), ("actions", 2 * (HORIZON - 1))]
+    checks += [(name, env) for name in stage for env in (0, 1)]
     results = []
     for name, index in checks:
         step = 1e-2 * max(abs(inputs[name].view(-1)[index].item()), 1.0)
+        if "_friction_" in name:  # a friction of 0.01 already stiffens a joint at rest (1 per rad/s): smaller steps
+            step = 1e-3
         numeric = (perturbed(name, index, step) - perturbed(name, index, -step)) / (2 * step)
         results.append((name, index, leaves[name].grad.view(-1)[index].item(), numeric))
     scale = max(abs(numeric) for *_, numeric in results)
-    wrong = [r for r in results if abs(r[2] - r[3]) > 0.02 * abs(r[3]) + 1e-4 * scale]
+    # a friction's finite difference has steps 10x smaller, and so 10x the float32 noise of the others
+    wrong = [r for r in results
+             if abs(r[2] - r[3]) > 0.02 * abs(r[3]) + (1e-3 if "_friction_" in r[0] else 1e-4) * scale]
     assert not wrong, f"tape vs finite differences (name, index, tape, numeric), scale {scale:.3g}: {wrong}"
     masses = [numeric for name, _, _, numeric in results if name.endswith("_mass_kg")]
-    assert len(masses) == rollout.num_joints and all(abs(m) > 1e-4 * scale for m in masses), \
+    assert len(masses) == 2 * rollout.num_joints and all(abs(m) > 1e-4 * scale for m in masses), \
         "every body's mass moves the loss (a solver's inertias derived off the tape would give 0)"
 
 
-@pytest.mark.parametrize("task", TASKS)
-def test_forward_is_the_envs_own_step(task):
-    """The rollout's states, observations and rewards equal the env's (reward, observation) after each step from
-    the same state under the same actions, at the stage's physics."""
-    env = cartpole_warp.tasks.make(task, num_envs=2, device=DEVICE, sim={"gradients": True})
+def physics_per_env(rollout: DifferentiableRollout, friction: bool = True) -> dict[str, torch.Tensor]:
+    """Each parameter different in each env and from the stage's: masses and centres of mass 0.8x and 1.2x, damping
+    and (where ``friction``, else none) friction 0.02 and 0.05 (N s/m, N m s/rad; N, N m) times 1 + the role's
+    index, actuator scale 0.9 and 1.1, gravity 9.6 and 10.0."""
+    out = {}
+    for name, value in rollout.stage_params().items():
+        role = next((r for r, role in enumerate(rollout.roles) if name.startswith(f"{role}_")), 0)
+        if "_friction_" in name and not friction:
+            out[name] = value
+        elif "_damping_" in name or "_friction_" in name:  # role k's 1 + k times the first's: no two alike
+            out[name] = torch.tensor([0.02, 0.05], device=value.device) * (1 + role)
+        elif name == "gravity_m_s2":
+            out[name] = torch.tensor([9.6, 10.0], device=value.device)
+        elif name == "actuator_scale":
+            out[name] = torch.tensor([0.9, 1.1], device=value.device)
+        else:
+            out[name] = value * torch.tensor([0.8, 1.2], device=value.device)
+    return out
+
+
+@pytest.mark.parametrize("task, sim", [(task, {}) for task in TASKS] + [
+    ("cartpole-balance", {"decimation": 4, "mass_matrix_interval": 2}),
+    ("cart-double-pole-balance", {"mass_matrix_interval": 1})])
+def test_forward_is_the_envs_own_step(task, sim):
+    """The rollout's observations and rewards equal the env's after each step from the same state under the same
+    actions, with each env's own physics (every parameter off the stage's, per role), for the mass matrix built at
+    every physics step or every other."""
+    roles = cartpole_warp.tasks.get(task).env_class.joint_roles
+    friction = {"at": "startup", "joint_friction": dict.fromkeys(roles, (0.0, 0.1))}  # the env applies friction
+    env = cartpole_warp.tasks.make(task, num_envs=2, device=DEVICE, sim={"gradients": True, **sim},
+                                   randomization=friction)
     rollout = DifferentiableRollout(env, horizon=5)
     q0, qd0, actions = start(rollout, seed=3)
+    params = physics_per_env(rollout)
     with torch.no_grad():
-        out = rollout(q0, qd0, actions=actions)
+        out = rollout(q0, qd0, actions=actions, params=params)
+    env.set_physical_params(**params)
     env.set_state(torch.stack([q0, qd0], dim=2).reshape(2, -1))
     for t in range(5):
         obs, reward, terminated, truncated, _ = env.step(actions[t])
@@ -117,3 +152,22 @@ def test_clear_errors():
         rollout(q0, qd0)
     with pytest.raises(ValueError, match="unknown physical parameters"):
         rollout(q0, qd0, actions=actions, params={"pole_length_m": torch.ones(2, device=DEVICE)})
+
+
+def test_a_result_is_backpropagated_once_and_before_the_next_call():
+    rollout = make_rollout("cartpole-balance", horizon=3)
+    q0, qd0, actions = start(rollout)
+    grads = []
+    for _ in range(2):  # the same gradients call after call (each call's tapes start from zero)
+        leaf = actions.clone().requires_grad_()
+        rollout(q0, qd0, actions=leaf).rewards.sum().backward()
+        grads.append(leaf.grad)
+    torch.testing.assert_close(grads[0], grads[1], rtol=0, atol=0)
+    out = rollout(q0, qd0, actions=actions.clone().requires_grad_())
+    out.rewards.sum().backward(retain_graph=True)
+    with pytest.raises(RuntimeError, match="once"):
+        out.rewards.sum().backward()
+    stale = rollout(q0, qd0, actions=actions.clone().requires_grad_())
+    rollout(q0, qd0, actions=actions)
+    with pytest.raises(RuntimeError, match="stale"):
+        stale.rewards.sum().backward()

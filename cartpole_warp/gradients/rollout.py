@@ -10,12 +10,14 @@ initial joint states, the actions (and through them a policy's parameters) and t
 Each env step is one ``torch.autograd.Function`` around a ``wp.Tape`` of the step's kernels: the task's joint forces
 of the clipped action (times ``actuator_scale``), each joint's friction before every physics step, ``decimation``
 steps of Newton's SolverFeatherstone, then the task's reward and observation of the state after them. Featherstone
-keeps its mass matrix and other scratch arrays on the solver and overwrites them at every step, so each physics step
-of the horizon has a solver of its own (a tape through one reused solver reads the last step's arrays backwards), and
-the bodies' spatial inertias, which a solver derives from the masses when it is made, are derived again on the tape
-from the parameters. Ends of episodes (termination, the time limit) are not applied: a rollout runs its H steps.
-The model is the env's stage, built again with gradients (``sim.gradients``: Newton's kernels with their adjoints);
-the env's own kernels stay adjoint-free, and training never builds this.
+keeps its joint-space mass matrix and the arrays derived from it on the solver and rebuilds them in place every
+``sim.mass_matrix_interval`` physics steps, so each build of the horizon has a solver of its own (a tape through one
+reused solver reads the last build's arrays backwards); the rest of a step's scratch lives on its states. The bodies'
+spatial inertias, which a solver derives from the masses when it is made, are derived again on the tape from the
+parameters. A result is backpropagated once, before the next call (else RuntimeError: the tapes and arrays are the
+rollout's, reused call after call). Ends of episodes (termination, the time limit) are not applied: a rollout runs
+its H steps. The model is the env's stage, built again with gradients (``sim.gradients``: Newton's kernels with
+their adjoints); the env's own kernels stay adjoint-free, and training never builds this.
 """
 
 import functools
@@ -30,7 +32,8 @@ import warp as wp
 from ..engine.env import BatchedEnv
 from ..engine.kernels import TaskFunctions, kernel_params, params_of
 from ..engine.randomization import FRICTION_VELOCITY, EnvPhysics, Layout, ModelFields, write_env
-from ..engine.scene import build_scene
+from ..engine.scene import build_scene, make_solver
+from ..engine.streams import StreamOrder
 
 
 @dataclass
@@ -131,8 +134,6 @@ class EnvStep:
     """The arrays, states and solvers of one env step of the horizon (its ``decimation`` physics steps)."""
 
     def __init__(self, rollout: "DifferentiableRollout"):
-        import newton
-
         r, n, dev = rollout, rollout.num_envs, rollout.device
         j, a = r.num_joints, r.num_actions
         self.q, self.qd, self.actions = zeros((n, j), dev), zeros((n, j), dev), zeros((n, a), dev)
@@ -142,18 +143,15 @@ class EnvStep:
         model = r.model
         self.states = [model.state(requires_grad=True) for _ in range(r.decimation + 1)]
         self.controls = [model.control() for _ in range(r.decimation)]
-        self.solvers = [newton.solvers.SolverFeatherstone(model, angular_damping=0.0)
-                        for _ in range(r.decimation)]
-        interval = r.mass_matrix_interval
-        for i, solver in enumerate(self.solvers):
-            # the spatial inertias the rollout derives on its tape; the mass matrix and its factors of the physics
-            # step that computed them last, as the env's solver reuses them (sim.mass_matrix_interval)
+        # one solver per mass matrix the env's solver builds in a step (every sim.mass_matrix_interval physics
+        # steps); the physics steps between read it, as the env's do. The rest of the step's scratch lives on the
+        # states (Featherstone's choice when the states take gradients).
+        self.solvers = [make_solver(model, r.sim) for _ in range(r.decimation // r.mass_matrix_interval)]
+        for solver in self.solvers:
+            if solver._has_joint_mimics or solver.use_tile_gemm or not hasattr(solver, "_step"):
+                raise ValueError("a differentiable rollout needs Featherstone without mimic joints or tile GEMMs "
+                                 "(Newton 1.8's solver, whose step counter picks when the mass matrix is built)")
             solver.body_I_m, solver.body_X_com = r.inertia_solver.body_I_m, r.inertia_solver.body_X_com
-            solver.update_mass_matrix_interval = interval
-            if i % interval:
-                source = self.solvers[i - i % interval]
-                solver.M, solver.J, solver.P, solver.H, solver.L = (source.M, source.J, source.P, source.H,
-                                                                    source.L)
         self.tape: wp.Tape | None = None
 
     def run(self, rollout: "DifferentiableRollout"):
@@ -167,11 +165,12 @@ class EnvStep:
                       outputs=[first.joint_q, first.joint_qd], device=dev)
             wp.launch(k.actuate, n, inputs=[r.params, self.actions, r.actuator_scale], outputs=[self.forces],
                       device=dev)
-            for i, solver in enumerate(self.solvers):
+            for i in range(r.decimation):
                 state, control = self.states[i], self.controls[i]
                 wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.role_dofs, dofs, state.joint_qd],
                           outputs=[control.joint_f], device=dev)
-                solver._step = i % r.mass_matrix_interval  # 0: compute the mass matrix, else reuse it
+                solver = self.solvers[i // r.mass_matrix_interval]
+                solver._step = i % r.mass_matrix_interval  # 0: build the mass matrix, else read the one built
                 solver.step(state, self.states[i + 1], control, None, r.physics_dt)
             last = self.states[-1]
             wp.launch(k.read_step, n, inputs=[r.params, last.joint_q, last.joint_qd, r.role_dofs, dofs, self.actions],
@@ -186,17 +185,29 @@ def grad_of(array: wp.array) -> torch.Tensor:
     return wp.to_torch(array.grad).clone()
 
 
+def check_backward(ctx):
+    """RuntimeError where this backward cannot be right: the rollout has run again since (its arrays and tapes hold
+    the newer call), or this call was backpropagated already (its tapes add to the gradients they left)."""
+    if ctx.call != ctx.rollout.calls:
+        raise RuntimeError("this rollout's result is stale: the DifferentiableRollout has run again since; call "
+                           "backward before the next call")
+    if getattr(ctx, "done", False):
+        raise RuntimeError("a DifferentiableRollout's result can be backpropagated once (retain_graph is not "
+                           "supported): run the rollout again")
+    ctx.done = True
+
+
 class PhysicsFunction(torch.autograd.Function):
     """The physical parameters into the model and the spatial inertias derived from them, on a tape; its output, a
     token, is an input of every step, so that its backward runs after theirs (whose tapes add to the model's grads)."""
 
     @staticmethod
     def forward(ctx, rollout, mass, com, damping, friction, actuator_scale, gravity):
-        ctx.rollout = rollout
+        ctx.rollout, ctx.call = rollout, rollout.calls
         for array, tensor in zip(rollout.physics_arrays, (mass, com, damping, friction, actuator_scale, gravity)):
             as_warp(array, tensor)
         rollout.physics_tape = wp.Tape()
-        with rollout.physics_tape:
+        with rollout.order, rollout.physics_tape:
             wp.launch(rollout.kernels.write_physics, rollout.num_envs, inputs=[rollout.layout, rollout.env_physics],
                       outputs=[rollout.model_fields], device=rollout.device)
             rollout.inertia_solver._update_body_inertial_buffers()
@@ -204,8 +215,10 @@ class PhysicsFunction(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, _token_grad):
+        check_backward(ctx)
         rollout = ctx.rollout
-        rollout.physics_tape.backward()
+        with rollout.order:
+            rollout.physics_tape.backward()
         return (None, *(grad_of(array) for array in rollout.physics_arrays))
 
 
@@ -214,20 +227,23 @@ class StepFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, rollout, step, token, q, qd, actions):
-        ctx.rollout, ctx.step = rollout, step
+        ctx.rollout, ctx.step, ctx.call = rollout, step, rollout.calls
         as_warp(step.q, q)
         as_warp(step.qd, qd)
         as_warp(step.actions, actions)
-        step.run(rollout)
+        with rollout.order:
+            step.run(rollout)
         return tuple(wp.to_torch(a).clone() for a in (step.q_out, step.qd_out, step.obs, step.rewards))
 
     @staticmethod
     def backward(ctx, q_grad, qd_grad, obs_grad, reward_grad):
+        check_backward(ctx)
         step = ctx.step
         for array, grad in zip((step.q_out, step.qd_out, step.obs, step.rewards), (q_grad, qd_grad, obs_grad,
                                                                                   reward_grad)):
             wp.to_torch(array.grad).copy_(grad)
-        step.tape.backward()
+        with ctx.rollout.order:
+            step.tape.backward()
         token_grad = torch.zeros((), device=q_grad.device)
         return None, None, token_grad, grad_of(step.q), grad_of(step.qd), grad_of(step.actions)
 
@@ -237,20 +253,22 @@ class ObserveFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, rollout, q, qd):
-        ctx.rollout = rollout
+        ctx.rollout, ctx.call = rollout, rollout.calls
         as_warp(rollout.q0, q)
         as_warp(rollout.qd0, qd)
         rollout.observe_tape = wp.Tape()
-        with rollout.observe_tape:
+        with rollout.order, rollout.observe_tape:
             wp.launch(rollout.kernels.observe, rollout.num_envs, inputs=[rollout.params, rollout.q0, rollout.qd0],
                       outputs=[rollout.obs0], device=rollout.device)
         return wp.to_torch(rollout.obs0).clone()
 
     @staticmethod
     def backward(ctx, obs_grad):
+        check_backward(ctx)
         rollout = ctx.rollout
         wp.to_torch(rollout.obs0.grad).copy_(obs_grad)
-        rollout.observe_tape.backward()
+        with rollout.order:
+            rollout.observe_tape.backward()
         return None, grad_of(rollout.q0), grad_of(rollout.qd0)
 
 
@@ -274,7 +292,11 @@ class DifferentiableRollout:
         self.roles = env.joint_roles
         self.num_joints, self.num_actions, self.num_obs = len(self.roles), env.num_actions, env.num_obs
         self.decimation, self.physics_dt = cfg.sim.decimation, cfg.sim.physics_dt
-        self.mass_matrix_interval = cfg.sim.mass_matrix_interval
+        self.mass_matrix_interval, self.sim = cfg.sim.mass_matrix_interval, cfg.sim
+        self.order = StreamOrder(self.device)
+        """Warp's work after torch's pending work on entry, torch's after Warp's on exit (their CUDA streams)."""
+        self.calls = 0
+        """Calls so far: a result's backward must belong to the last one."""
         self.kernels = differentiable_kernels(env.functions, env.config_class, self.num_joints, self.num_actions,
                                               self.num_obs, f"{type(env).__module__}.{type(env).__qualname__}.grad")
         self.params = params_of(env.config_class, cfg.task)
@@ -333,6 +355,7 @@ class DifferentiableRollout:
         the result before the next call: each step's tape and arrays are reused."""
         if (actions is None) == (policy is None):
             raise ValueError("give actions (H, N, num_actions) or a policy, not both")
+        self.calls += 1
         for tape in (self.physics_tape, self.observe_tape, *(step.tape for step in self.steps)):
             if tape is not None:
                 tape.zero()
