@@ -262,18 +262,25 @@ def view(args: PlayArgs, env, policy: Policy, play_metric: str) -> int:
 
 def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpoint: Path | None) -> int:
     """Each env's first episode, recorded (GIF, USD, MP4 with the video extra; for a policy that sees camera frames,
-    also ``policy_view.gif``: those frames beside the side view); the statistics printed and written to
-    result.json."""
+    also ``policy_view.gif``: those frames beside the side view; env 0's joint states and actions as
+    ``trajectory.npz``, the input of ``tools.sysid``); the statistics printed and written to result.json."""
     from .evaluation.rollouts import rollout, whole_episode_steps
+    from .evaluation.trajectories import TRAJECTORY_FILE, TrajectoryRecorder
     from .viz.record import VIDEO_EXTRA, Recorder, video_available
 
     task = cfg.task_spec
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
     recorder = Recorder.of_env(env, output, video_length=args.video_length, viser=args.record_viser)
+    trajectory = TrajectoryRecorder(env)
+
+    def on_step(k: int):
+        recorder(k)
+        trajectory(k)
+
     print(f"playing {env.num_envs} envs for {steps} env steps ...", flush=True)
-    stats = rollout(env, policy, steps, on_step=with_progress(recorder, steps), seed=cfg.env.seed)
-    pictures = recorder.close()
+    stats = rollout(env, policy, steps, on_step=with_progress(on_step, steps), seed=cfg.env.seed)
+    pictures = [*recorder.close(), trajectory.write(output / TRAJECTORY_FILE)]
     at_limit = cfg.env.task.has_time_limit and steps >= env.max_episode_length
     limit = f"the {cfg.env.task.episode_length_s:g} s time limit" if at_limit else f"the {steps}-step cap"
     whole = steps >= whole_episode_steps(env)

@@ -317,6 +317,12 @@ class BatchedEnv(VectorSpaces, abc.ABC):
         """The current observations (``obs_shape``), a fresh tensor."""
         return self.obs_buf.clone()
 
+    def joint_state(self) -> "tuple[torch.Tensor, torch.Tensor]":
+        """Each env's joint positions and velocities now, (N, joint roles) each in ``joint_roles`` order (m or rad, m/s
+        or rad/s; a hinge's angle relative to the body below it): after a step the state it reached, or the start of
+        the episode an autoreset began. Fresh tensors."""
+        return wp.to_torch(self.buffers.episodes.last_q).clone(), wp.to_torch(self.buffers.episodes.last_qd).clone()
+
     def get_state_observations(self) -> "torch.Tensor":
         """The task's state observations (N, num_obs), a fresh tensor (the critic's where the policy sees images)."""
         return self.state_obs_buf.clone()

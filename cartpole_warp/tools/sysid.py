@@ -1,0 +1,357 @@
+"""System identification: fit a task's physical parameters to a recorded trajectory by gradient descent through the
+simulator (``gradients.rollout``).
+
+    python -m cartpole_warp.tools.sysid --task cartpole-swingup --trajectory rig.csv
+    python -m cartpole_warp.tools.sysid --task cartpole-balance --trajectory RUN/play/trajectory.npz
+
+The recording (CSV with a header row, or NPZ; ``play.py --headless`` writes one of env 0 as ``trajectory.npz``):
+``time_s``; ``action`` (the action applied from that row's time to the next row's, -1..1 as the task takes it); per
+joint role its position, ``cart_pos_m`` for the cart and ``<role>_angle_rad`` for each pole (``pole_angle_rad``,
+``pole2_angle_rad``: the hinge's angle relative to the body below it, 0 upright), and optionally its velocity
+(``cart_vel_m_s``, ``<role>_vel_rad_s``); an optional ``episode`` column marks where the rig was reset. Rows come at
+the task's control period (``sim.physics_dt`` x ``sim.decimation``).
+
+Multiple shooting: the recording is cut into windows of ``--window-steps`` env steps, each simulated from its own
+initial state (fitted too, starting from the recorded positions and the recorded or differenced velocities), so that
+errors do not compound through a chaotic trajectory. Every window of every starting guess is one env of one batched,
+differentiable rollout: ``--guesses`` guesses, each parameter drawn log-uniformly within ``--spread`` of the stage's
+value, fitted at once by Levenberg-Marquardt on the log of each parameter and every window's start (the gradient
+through the simulator's adjoints, the Jacobian by forward differences of the batched rollout, the windows' starts
+eliminated per window). The guess that fits best is printed against the stage's
+values with the residual, plotted (recorded against simulated positions, PNG) and written as a preset whose
+randomization ranges lie ``--randomize`` around the fit (0: exactly the fit) for ``train.py --config FILE`` and
+``play.py --config FILE``. A parameter that the guesses which fit as well as the best disagree on is reported as not
+identified by the recording.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from .. import tasks
+from ..cli import clean_errors, parse, quiet_libraries
+from ..engine.scene import StageError
+from ..evaluation.trajectories import Recording, column_names, read_trajectory
+from ..gradients.rollout import DifferentiableRollout, Trajectory
+from ..settings.config import ConfigError, require
+from ..settings.files import write_text
+
+NOT_FITTED_BY_DEFAULT = ("actuator_scale", "gravity_m_s2")
+"""Left at the stage's values unless ``--fit`` names them: scaling every mass, damping, friction and the actuator
+together moves nothing (only their ratios are in the motion), and gravity is known."""
+EQUALLY_GOOD = 1.1
+"""Guesses whose loss is within this factor of the best one's count as fitting as well."""
+INITIAL_DAMPING = 1e-2
+"""Levenberg-Marquardt's first damping (per guess: divided by 3 after a step that lowers the loss, times 4 after one
+that does not)."""
+JACOBIAN_STEP = 1e-3
+"""Forward-difference step of the Jacobian's columns (in units of each signal's spread, and of a log-parameter)."""
+IDENTIFIED_WITHIN = 0.01
+"""A parameter whose standard error is above this fraction of its fit (or of the stage's value, if larger) is
+reported as not identified by the recording: its effect on the recorded positions is small against their noise."""
+ZERO_START = 0.01
+"""Guesses draw a parameter the stage leaves at 0 (damping, friction) within this many SI units of 0, times
+``--spread``."""
+
+
+@dataclass
+class SysidArgs:
+    """Fit a task's physical parameters to a recorded trajectory (module docstring)."""
+
+    trajectory: Path | None = None
+    """The recording: a CSV with a header row or an NPZ (columns in the module docstring)."""
+    task: str = tasks.DEFAULT_TASK
+    """The registered state task whose stage and joints the recording is of."""
+    fit: list[str] = field(default_factory=list)
+    """Parameters to fit (names as printed); default: every mass, centre of mass, joint damping and friction."""
+    window_steps: int = 20
+    """Env steps of each shooting window."""
+    guesses: int = 8
+    """Starting guesses fitted at once (one batch of envs each)."""
+    spread: float = 0.5
+    """Each guess draws a parameter's starting value log-uniformly within a factor 1 + this of the stage's."""
+    iterations: int = 30
+    """Levenberg-Marquardt iterations (each: the gradient by one backward pass through the simulator, the Jacobian
+    by forward differences, a step on the parameters and every window's start)."""
+    randomize: float = 0.0
+    """The preset's randomization ranges: the fit times (1 -/+ this) (0: the fit exactly)."""
+    device: str = "cpu"
+    """Where the rollouts run: 'cpu' or 'cuda:N'."""
+    output: Path | None = None
+    """Folder for sysid_preset.yaml, sysid_fit.png and sysid_result.yaml (default: <trajectory>_sysid beside the
+    recording)."""
+    seed: int = 0
+    """Seed of the starting guesses."""
+
+
+def windows(recording: Recording, steps: int, dt: float) -> list[int]:
+    """The first rows of the shooting windows: ``steps`` + 1 rows each, inside one episode, back to back."""
+    same = recording.episode
+    starts, t = [], 0
+    while t + steps < len(same):
+        if (same[t:t + steps + 1] == same[t]).all():
+            starts.append(t)
+            t += steps
+        else:
+            t += 1
+    return starts
+
+
+def velocities(recording: Recording, dt: float) -> np.ndarray:
+    """Recorded velocities where given, else central differences of the positions within each episode."""
+    qd = recording.qd.copy()
+    for episode in np.unique(recording.episode):
+        rows = recording.episode == episode
+        if rows.sum() > 1:
+            differenced = np.gradient(recording.q[rows], dt, axis=0)
+            qd[rows] = np.where(np.isfinite(qd[rows]), qd[rows], differenced)
+    return np.nan_to_num(qd)
+
+
+def unit(size: int, index: int, device) -> torch.Tensor:
+    """The ``index``-th unit vector of length ``size``."""
+    return torch.nn.functional.one_hot(torch.tensor(index), size).float().to(device)
+
+
+def angle_error(a: torch.Tensor, b: torch.Tensor, hinge: torch.Tensor) -> torch.Tensor:
+    """a - b, wrapped to (-pi, pi] on the hinges (``hinge`` (joints,) bool)."""
+    difference = a - b
+    return torch.where(hinge, torch.atan2(torch.sin(difference), torch.cos(difference)), difference)
+
+
+def fit(args: SysidArgs) -> dict:
+    """The fit (``SysidArgs``): prints its progress and result, writes the plot, the preset and the result file, and
+    returns the result."""
+    task = tasks.get(args.task)
+    probe = task.env_class(tasks.env_config(args.task, num_envs=1, device=args.device))
+    require(not probe.sees_images, f"--task {args.task} observes camera frames; identify its state twin's physics")
+    roles, sliders, dt = probe.joint_roles, probe.physics.sliders, probe.cfg.sim.env_dt
+    recording = read_trajectory(args.trajectory, roles, sliders, probe.num_actions)
+    steps_dt = np.diff(recording.time_s)
+    require(np.allclose(steps_dt[np.diff(recording.episode) == 0], dt, rtol=1e-3, atol=1e-6),
+            f"{args.trajectory}: rows must come every {dt:g} s (the task's control period)")
+    starts = windows(recording, args.window_steps, dt)
+    require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode")
+    names = physics_names = [n for n in probe.physics.settable() if n != "action_delay_steps"]
+    stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in physics_names}
+    on_joint = [f"{role}_com_m" for role, body in zip(roles, probe.physics.bodies) if body.com_distance == 0.0]
+    names = args.fit or [n for n in physics_names if n not in NOT_FITTED_BY_DEFAULT and n not in on_joint]
+    unknown = sorted(set(names) - set(physics_names))
+    require(not unknown, f"--fit: unknown parameters {unknown}; this task's: {', '.join(physics_names)}")
+    require(not set(names) & set(on_joint), f"--fit: {', '.join(set(names) & set(on_joint))}: those bodies' centre "
+                                            "of mass lies on their joint, with no line to move along")
+    probe.close()
+
+    guesses, num_windows, horizon = args.guesses, len(starts), args.window_steps
+    n = guesses * num_windows
+    env = task.env_class(tasks.env_config(args.task, num_envs=n, device=args.device, sim={"gradients": True}))
+    rollout = DifferentiableRollout(env, horizon)
+    device = rollout.device
+    rows = np.array(starts)[:, None] + np.arange(horizon + 1)[None, :]  # (windows, H + 1)
+    tensor = lambda x: torch.as_tensor(x, dtype=torch.float32, device=device)  # noqa: E731
+    recorded = tensor(recording.q[rows]).repeat(guesses, 1, 1)  # (N, H + 1, joints)
+    actions = tensor(recording.action[rows[:, :-1]]).repeat(guesses, 1, 1).transpose(0, 1)  # (H, N, actions)
+    scale = tensor(np.maximum(recording.q.std(axis=0), 1e-3))
+    hinge = torch.tensor([not s for s in sliders], device=device)
+    # a parameter the stage sets (a mass, a centre of mass) is fitted as its log over the stage's value; one the
+    # stage leaves at 0 (damping, friction) as itself in SI units, kept >= 0
+    linear = torch.tensor([stage[name] == 0.0 for name in names], device=device)
+    base = {name: stage[name] if stage[name] > 0 else 1.0 for name in names}
+    generator = torch.Generator().manual_seed(args.seed)
+    spread = math.log1p(args.spread)
+    theta = ((torch.rand((guesses, len(names)), generator=generator) * 2 - 1) * spread).to(device)
+    theta[0] = 0.0  # one guess starts at the stage's values
+    theta = torch.where(linear, theta.abs() * ZERO_START, theta)  # the others near 0
+    estimated = velocities(recording, dt)
+    velocity_scale = tensor(np.maximum(estimated.std(axis=0), 1e-3))
+    qd_start = tensor(estimated[rows[:, 0]]).repeat(guesses, 1)
+    joints = len(roles)
+    starts_t = torch.zeros((n, 2 * joints), device=device)  # each window's start, in units of the signals' spread
+    base_t = tensor([base[name] for name in names])
+    guess_of = torch.arange(n, device=device) // num_windows
+
+    def residuals(theta: torch.Tensor, starts_t: torch.Tensor) -> tuple[torch.Tensor, Trajectory]:
+        """(N, (H + 1) x joints) normalized position errors of every window, and the rollout."""
+        values = physical(theta)
+        params = {name: values[:, k].repeat_interleave(num_windows) for k, name in enumerate(names)}
+        q0 = recorded[:, 0] + starts_t[:, :joints] * scale
+        qd0 = qd_start + starts_t[:, joints:] * velocity_scale
+        out = rollout(q0, qd0, actions=actions, params=params)
+        return (angle_error(out.q.transpose(0, 1), recorded, hinge) / scale).flatten(1), out
+
+    def physical(theta: torch.Tensor) -> torch.Tensor:
+        """(G, P) parameters (SI) of the fitted variables."""
+        return torch.where(linear, base_t * theta, base_t * torch.exp(theta))
+
+    def per_guess(r: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(guesses, device=device).index_add_(0, guess_of, 0.5 * r.pow(2).sum(dim=1))
+
+    def jacobians(theta: torch.Tensor, starts_t: torch.Tensor, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The residuals' Jacobians by forward differences, (N, K, 2 joints) in each window's start and (N, K, P) in
+        the log-parameters: one batched rollout per column (the windows are independent envs)."""
+        a_cols = [(residuals(theta, starts_t + JACOBIAN_STEP * unit(2 * joints, j, device))[0] - r) / JACOBIAN_STEP
+                  for j in range(2 * joints)]
+        b_cols = [(residuals(theta + JACOBIAN_STEP * unit(len(names), k, device), starts_t)[0] - r) / JACOBIAN_STEP
+                  for k in range(len(names))]
+        return torch.stack(a_cols, dim=2), torch.stack(b_cols, dim=2)
+
+    def schur(a: torch.Tensor, b: torch.Tensor, lam: torch.Tensor, extra: torch.Tensor | None = None):
+        """Per window: A'A + lam, A'B, and the parameters' normal matrix with the window's start eliminated."""
+        ata = a.transpose(1, 2) @ a + lam[:, None, None] * torch.eye(2 * joints, device=device)
+        atb = a.transpose(1, 2) @ b
+        solved = torch.linalg.solve(ata, atb if extra is None else torch.cat([atb, extra], dim=2))
+        return ata, atb, b.transpose(1, 2) @ b - atb.transpose(1, 2) @ solved[:, :, :atb.shape[2]], solved
+
+    print(f"{args.task}: {len(recording.time_s)} rows, {num_windows} windows of {horizon} steps x {guesses} guesses "
+          f"= {n} envs on {device}; fitting {', '.join(names)}", flush=True)
+    start = time.perf_counter()
+    damping = torch.full((guesses,), INITIAL_DAMPING, device=device)
+    for it in range(args.iterations):
+        # the exact gradient through the simulator (one backward pass), the Jacobian's columns by forward differences
+        # (one batched rollout per starting-state coordinate and per parameter: the windows are independent envs)
+        theta_leaf, starts_leaf = theta.clone().requires_grad_(), starts_t.clone().requires_grad_()
+        r, _ = residuals(theta_leaf, starts_leaf)
+        loss = per_guess(r.detach())
+        per_guess(r).sum().backward()
+        grad_theta, grad_starts = theta_leaf.grad, starts_leaf.grad
+        r = r.detach()
+        with torch.no_grad():
+            a, b = jacobians(theta, starts_t, r)
+            lam = damping[guess_of]
+            ata, atb, reduced, solve_ata = schur(a, b, lam, grad_starts[:, :, None])
+            shur = torch.zeros((guesses, len(names), len(names)), device=device).index_add_(0, guess_of, reduced)
+            shur += damping[:, None, None] * torch.eye(len(names), device=device)
+            rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
+                0, guess_of, (atb.transpose(1, 2) @ solve_ata[:, :, -1:]).squeeze(2))
+            step_theta = -torch.linalg.solve(shur, rhs)
+            step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
+            trial_theta, trial_starts = theta + step_theta, starts_t + step_starts.squeeze(2)
+            trial_theta = torch.where(linear, trial_theta.clamp(min=0.0), trial_theta)
+            trial_loss = per_guess(residuals(trial_theta, trial_starts)[0])
+            better = trial_loss < loss
+            theta = torch.where(better[:, None], trial_theta, theta)
+            starts_t = torch.where(better[guess_of][:, None], trial_starts, starts_t)
+            damping = torch.where(better, damping / 3, damping * 4).clamp(1e-9, 1e9)
+        print(f"  iteration {it + 1}/{args.iterations}: best loss {torch.minimum(loss, trial_loss).min().item():.3e} "
+              f"({time.perf_counter() - start:.1f} s)", flush=True)
+    with torch.no_grad():
+        r, out = residuals(theta, starts_t)
+        losses = per_guess(r)
+        best = int(losses.argmin())
+        # standard errors: the noise's variance (the residual per degree of freedom) times the inverse of the
+        # parameters' normal matrix (Gauss-Newton's, each window's start eliminated), for the best guess
+        rows_best = guess_of == best
+        a, b = jacobians(theta, starts_t, r)
+        normal = schur(a[rows_best], b[rows_best], torch.zeros(num_windows, device=device))[2].sum(dim=0)
+        freedom = max(r[rows_best].numel() - len(names) - num_windows * 2 * joints, 1)
+        variance = 2 * float(losses[best]) / freedom
+        theta_error = torch.sqrt(variance * torch.linalg.pinv(normal.double()).diagonal().clamp(min=0)).float()
+    values = physical(theta)
+    # a log-parameter's standard error is relative; a linear one's is in SI units
+    error = torch.where(linear, base_t * theta_error, values[best] * theta_error)
+    seconds = time.perf_counter() - start
+    fitted = {name: float(values[best, k]) for k, name in enumerate(names)}
+    standard_error = {name: float(error[k]) for k, name in enumerate(names)}
+    good = (losses <= losses[best] * EQUALLY_GOOD).nonzero().flatten()
+    window_error = angle_error(out.q.transpose(0, 1), recorded, hinge)
+    best_rows = slice(best * num_windows, (best + 1) * num_windows)
+    residual = window_error[best_rows].pow(2).mean(dim=(0, 1)).sqrt().cpu().numpy()
+    result = {"task": args.task, "trajectory": str(args.trajectory), "seconds": round(seconds, 2),
+              "windows": num_windows, "window_steps": horizon, "guesses": guesses, "loss": float(losses[best]),
+              "stage": {name: stage[name] for name in names}, "fitted": fitted,
+              "standard_error": standard_error,
+              "not_identified": [name for name in names
+                                 if standard_error[name] > IDENTIFIED_WITHIN * max(fitted[name], stage[name])],
+              "residual_rms": {pos: float(r) for pos, r in zip(column_names(roles, sliders)[0], residual)}}
+    report(result, len(good))
+    output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
+    plot(output / "sysid_fit.png", recording, starts, out.q.detach()[:, best_rows].cpu().numpy(), dt,
+         column_names(roles, sliders)[0])
+    write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
+    preset = write_preset(output / "sysid_preset.yaml", args, stage, fitted, roles, probe.physics.bodies)
+    print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
+          f"(python train.py --task {args.task} --config {preset})")
+    return result
+
+
+def report(result: dict, equally_good: int):
+    """The fitted values against the stage's, the residual and what the recording does not pin down."""
+    print(f"fit in {result['seconds']:.1f} s; {equally_good} of {result['guesses']} guesses fit within "
+          f"{EQUALLY_GOOD:g}x of the best loss ({result['loss']:.3e})")
+    print(f"{'parameter':<26} {'stage':>10} {'fitted':>10} {'standard error':>15} {'fitted/stage':>13}")
+    for name, value in result["fitted"].items():
+        stage, error = result["stage"][name], result["standard_error"][name]
+        ratio = f"{value / stage:13.3f}" if stage else f"{'-':>13}"
+        flag = "  not identified by the recording (its standard error)" if name in result["not_identified"] else ""
+        print(f"{name:<26} {stage:10.4g} {value:10.4g} {error:15.2g} {ratio}{flag}")
+    print("residual (RMS over the windows): " + ", ".join(f"{k} {v:.4g}" for k, v in result["residual_rms"].items()))
+
+
+def plot(path: Path, recording: Recording, starts: list[int], simulated: np.ndarray, dt: float, labels: list[str]):
+    """Recorded positions (lines) against each window's simulation (dots) for the best guess."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    joints = recording.q.shape[1]
+    figure, axes = plt.subplots(joints, 1, figsize=(10, 2.2 * joints), sharex=True, squeeze=False)
+    for j in range(joints):
+        ax = axes[j, 0]
+        ax.plot(recording.time_s, recording.q[:, j], color="0.4", lw=1, label="recorded")
+        for w, first in enumerate(starts):
+            times = recording.time_s[first] + dt * np.arange(simulated.shape[0])
+            ax.plot(times, simulated[:, w, j], ".", ms=2, color="tab:red", label="simulated" if w == 0 else None)
+        ax.set_ylabel(labels[j])
+    axes[0, 0].legend(loc="upper right")
+    axes[-1, 0].set_xlabel("time (s)")
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, roles: tuple[str, ...], bodies) -> Path:
+    """A preset whose randomization draws the fitted physics (times 1 -/+ ``args.randomize``) at every reset."""
+    low, high = 1.0 - args.randomize, 1.0 + args.randomize
+    sections: dict = {}
+    for name, value in fitted.items():
+        role = next((r for r in roles if name.startswith(f"{r}_")), None)
+        if name.endswith("_mass_kg"):
+            sections.setdefault("mass_scale", {})[role] = [value / stage[name] * low, value / stage[name] * high]
+        elif name.endswith("_com_m"):
+            sections.setdefault("com_offset_m", {})[role] = [value * low - stage[name], value * high - stage[name]]
+        elif "_damping_" in name:
+            sections.setdefault("joint_damping", {})[role] = [value * low, value * high]
+        elif "_friction_" in name:
+            sections.setdefault("joint_friction", {})[role] = [value * low, value * high]
+        else:
+            sections[name] = [value * low, value * high]
+    preset = {"task": args.task, "env": {"randomization": {"at": "reset", **sections}}}
+    header = (f"# The physics tools.sysid fitted to {args.trajectory} (task {args.task}); randomization ranges "
+              f"{args.randomize:g} around the fit.\n# python train.py --task {args.task} --config {path}\n")
+    return write_text(path, header + yaml.safe_dump(preset, sort_keys=False))
+
+
+def main(argv: list[str] | None = None) -> int:
+    quiet_libraries()
+    with clean_errors(ConfigError, StageError):
+        args = parse(SysidArgs, SysidArgs(), sys.argv[1:] if argv is None else argv, __doc__)
+        require(args.trajectory is not None, "--trajectory FILE is required (a CSV or NPZ recording)")
+        require(args.window_steps >= 1 and args.guesses >= 1 and args.iterations >= 1,
+                "--window-steps, --guesses and --iterations must be >= 1")
+        require(args.spread >= 0 and 0 <= args.randomize < 1, "--spread must be >= 0 and --randomize in [0, 1)")
+        fit(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
