@@ -81,3 +81,6 @@ def test_the_recording_format_reads_back_and_names_what_is_missing(tmp_path):
     (tmp_path / "bad.csv").write_text("time_s,action,cart_pos_m\n0,0,0\n")
     with pytest.raises(ConfigError, match="missing columns pole_angle_rad"):
         read_trajectory(tmp_path / "bad.csv", env.joint_roles, env.physics.sliders, 1)
+    (tmp_path / "ragged.csv").write_text("time_s,action,cart_pos_m,pole_angle_rad\n0,0,0,zero\n")
+    with pytest.raises(ConfigError, match="not a readable trajectory"):
+        read_trajectory(tmp_path / "ragged.csv", env.joint_roles, env.physics.sliders, 1)

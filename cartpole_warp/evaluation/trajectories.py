@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..engine.env import BatchedEnv
-from ..settings.config import require
+from ..settings.config import ConfigError, require
 
 TRAJECTORY_FILE = "trajectory.npz"
 """The file play.py --headless writes env 0's trajectory to."""
@@ -61,15 +61,21 @@ def write_trajectory(path: Path, recording: Recording, roles: tuple[str, ...], s
 def read_trajectory(path: Path, roles: tuple[str, ...], sliders: list[bool], num_actions: int) -> Recording:
     """The recording in ``path``; ConfigError naming what is missing or malformed."""
     require(path.is_file(), f"no trajectory file {path}")
-    if path.suffix == ".npz":
-        with np.load(path) as data:
-            columns = {name: np.asarray(data[name], dtype=np.float64) for name in data.files}
-    else:
-        with path.open(newline="") as file:
-            rows = list(csv.reader(file))
-        require(len(rows) > 1, f"{path}: expected a header row and data rows")
-        header, values = rows[0], np.array(rows[1:], dtype=np.float64)
-        columns = {name.strip(): values[:, i] for i, name in enumerate(header)}
+    try:
+        if path.suffix == ".npz":
+            with np.load(path) as data:
+                columns = {name: np.asarray(data[name], dtype=np.float64).reshape(-1) for name in data.files}
+        else:
+            with path.open(newline="") as file:
+                rows = [row for row in csv.reader(file) if row]
+            require(len(rows) > 1, f"{path}: expected a header row and data rows")
+            header, values = rows[0], np.array(rows[1:], dtype=np.float64)
+            require(values.ndim == 2 and values.shape[1] == len(header),
+                    f"{path}: every row needs {len(header)} values, one per header column")
+            columns = {name.strip(): values[:, i] for i, name in enumerate(header)}
+    except (ValueError, OSError) as err:  # unparsable numbers, ragged rows, not an NPZ
+        raise ConfigError(f"{path}: not a readable trajectory ({err})") from None
+    require(len({len(column) for column in columns.values()}) == 1, f"{path}: columns of different lengths")
     positions, velocities = column_names(roles, sliders)
     actions = ["action"] if num_actions == 1 else [f"action_{i}" for i in range(num_actions)]
     missing = [name for name in ["time_s", *actions, *positions] if name not in columns]

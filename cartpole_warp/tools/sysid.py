@@ -15,13 +15,15 @@ Multiple shooting: the recording is cut into windows of ``--window-steps`` env s
 initial state (fitted too, starting from the recorded positions and the recorded or differenced velocities), so that
 errors do not compound through a chaotic trajectory. Every window of every starting guess is one env of one batched,
 differentiable rollout: ``--guesses`` guesses, each parameter drawn log-uniformly within ``--spread`` of the stage's
-value, fitted at once by Levenberg-Marquardt on the log of each parameter and every window's start (the gradient
+value, fitted at once by Levenberg-Marquardt on the parameters (the log of those the stage sets, the others in SI
+units, kept >= 0) and every window's start (the gradient
 through the simulator's adjoints, the Jacobian by forward differences of the batched rollout, the windows' starts
 eliminated per window). The guess that fits best is printed against the stage's
 values with the residual, plotted (recorded against simulated positions, PNG) and written as a preset whose
 randomization ranges lie ``--randomize`` around the fit (0: exactly the fit) for ``train.py --config FILE`` and
-``play.py --config FILE``. A parameter that the guesses which fit as well as the best disagree on is reported as not
-identified by the recording.
+``play.py --config FILE``. A parameter whose standard error exceeds 1% of its fit is reported as not identified by
+the recording. The recording must be of one physics: no domain randomization or action delay while it was made (the
+fit has neither).
 """
 
 from __future__ import annotations
@@ -92,7 +94,7 @@ class SysidArgs:
     """Seed of the starting guesses."""
 
 
-def windows(recording: Recording, steps: int, dt: float) -> list[int]:
+def windows(recording: Recording, steps: int) -> list[int]:
     """The first rows of the shooting windows: ``steps`` + 1 rows each, inside one episode, back to back."""
     same = recording.episode
     starts, t = [], 0
@@ -105,13 +107,15 @@ def windows(recording: Recording, steps: int, dt: float) -> list[int]:
     return starts
 
 
-def velocities(recording: Recording, dt: float) -> np.ndarray:
+def velocities(recording: Recording, dt: float, sliders: list[bool]) -> np.ndarray:
     """Recorded velocities where given, else central differences of the positions within each episode."""
     qd = recording.qd.copy()
     for episode in np.unique(recording.episode):
         rows = recording.episode == episode
         if rows.sum() > 1:
-            differenced = np.gradient(recording.q[rows], dt, axis=0)
+            q = recording.q[rows]
+            q = np.where(sliders, q, np.unwrap(q, axis=0))  # a hinge recorded wrapped to (-pi, pi]
+            differenced = np.gradient(q, dt, axis=0)
             qd[rows] = np.where(np.isfinite(qd[rows]), qd[rows], differenced)
     return np.nan_to_num(qd)
 
@@ -138,12 +142,13 @@ def fit(args: SysidArgs) -> dict:
     steps_dt = np.diff(recording.time_s)
     require(np.allclose(steps_dt[np.diff(recording.episode) == 0], dt, rtol=1e-3, atol=1e-6),
             f"{args.trajectory}: rows must come every {dt:g} s (the task's control period)")
-    starts = windows(recording, args.window_steps, dt)
+    starts = windows(recording, args.window_steps)
     require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode")
     names = physics_names = [n for n in probe.physics.settable() if n != "action_delay_steps"]
     stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in physics_names}
     on_joint = [f"{role}_com_m" for role, body in zip(roles, probe.physics.bodies) if body.com_distance == 0.0]
     names = args.fit or [n for n in physics_names if n not in NOT_FITTED_BY_DEFAULT and n not in on_joint]
+    require(len(set(names)) == len(names), f"--fit names a parameter twice: {' '.join(names)}")
     unknown = sorted(set(names) - set(physics_names))
     require(not unknown, f"--fit: unknown parameters {unknown}; this task's: {', '.join(physics_names)}")
     require(not set(names) & set(on_joint), f"--fit: {', '.join(set(names) & set(on_joint))}: those bodies' centre "
@@ -170,7 +175,7 @@ def fit(args: SysidArgs) -> dict:
     theta = ((torch.rand((guesses, len(names)), generator=generator) * 2 - 1) * spread).to(device)
     theta[0] = 0.0  # one guess starts at the stage's values
     theta = torch.where(linear, theta.abs() * ZERO_START, theta)  # the others near 0
-    estimated = velocities(recording, dt)
+    estimated = velocities(recording, dt, sliders)
     velocity_scale = tensor(np.maximum(estimated.std(axis=0), 1e-3))
     qd_start = tensor(estimated[rows[:, 0]]).repeat(guesses, 1)
     joints = len(roles)
@@ -189,7 +194,7 @@ def fit(args: SysidArgs) -> dict:
 
     def physical(theta: torch.Tensor) -> torch.Tensor:
         """(G, P) parameters (SI) of the fitted variables."""
-        return torch.where(linear, base_t * theta, base_t * torch.exp(theta))
+        return torch.where(linear, base_t * theta, base_t * torch.exp(torch.where(linear, 0.0, theta)))
 
     def per_guess(r: torch.Tensor) -> torch.Tensor:
         return torch.zeros(guesses, device=device).index_add_(0, guess_of, 0.5 * r.pow(2).sum(dim=1))
@@ -245,15 +250,19 @@ def fit(args: SysidArgs) -> dict:
     with torch.no_grad():
         r, out = residuals(theta, starts_t)
         losses = per_guess(r)
-        best = int(losses.argmin())
+        best = int(losses.nan_to_num(nan=math.inf).argmin())  # a guess that diverged is never the best
         # standard errors: the noise's variance (the residual per degree of freedom) times the inverse of the
         # parameters' normal matrix (Gauss-Newton's, each window's start eliminated), for the best guess
         rows_best = guess_of == best
         a, b = jacobians(theta, starts_t, r)
         normal = schur(a[rows_best], b[rows_best], torch.zeros(num_windows, device=device))[2].sum(dim=0)
-        freedom = max(r[rows_best].numel() - len(names) - num_windows * 2 * joints, 1)
+        shared = sum(b - a == horizon for a, b in zip(starts, starts[1:]))  # rows two windows both hold
+        freedom = max(r[rows_best].numel() - shared * joints - len(names) - num_windows * 2 * joints, 1)
         variance = 2 * float(losses[best]) / freedom
-        theta_error = torch.sqrt(variance * torch.linalg.pinv(normal.double()).diagonal().clamp(min=0)).float()
+        # a direction the data do not see (an eigenvalue ~0) gives the parameters along it a huge error, not none
+        eigenvalues, vectors = torch.linalg.eigh(normal.double())
+        eigenvalues = eigenvalues.clamp(min=1e-12 * max(float(eigenvalues.max()), 1e-30))
+        theta_error = torch.sqrt(variance * (vectors.pow(2) / eigenvalues).sum(dim=1)).float()
     values = physical(theta)
     # a log-parameter's standard error is relative; a linear one's is in SI units
     error = torch.where(linear, base_t * theta_error, values[best] * theta_error)
@@ -268,8 +277,8 @@ def fit(args: SysidArgs) -> dict:
               "windows": num_windows, "window_steps": horizon, "guesses": guesses, "loss": float(losses[best]),
               "stage": {name: stage[name] for name in names}, "fitted": fitted,
               "standard_error": standard_error,
-              "not_identified": [name for name in names
-                                 if standard_error[name] > IDENTIFIED_WITHIN * max(fitted[name], stage[name])],
+              "not_identified": [name for name in names if (fitted[name] > 0 or stage[name] > 0)
+                                 and standard_error[name] > IDENTIFIED_WITHIN * max(fitted[name], stage[name])],
               "residual_rms": {pos: float(r) for pos, r in zip(column_names(roles, sliders)[0], residual)}}
     report(result, len(good))
     output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
