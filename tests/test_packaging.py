@@ -97,3 +97,15 @@ def test_the_video_extra_caps_no_core_dependency_below_its_own_range():
     capped = [f"{r.name}: {inner}" for r in requirements("cartpole_warp", "video") for inner in requirements(r.name)
               if inner.name == "pillow" and newest_allowed not in inner.specifier]
     assert capped == []
+
+
+def test_the_wheel_lists_every_package_folder():
+    """pyproject names its packages one by one: a new layer's folder must be among them or the wheel leaves it out."""
+    from pathlib import Path
+
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = {".".join(path.parent.relative_to(root).parts) for path in (root / "cartpole_warp").rglob("__init__.py")}
+    assert folders <= listed, f"not in pyproject's packages: {sorted(folders - listed)}"

@@ -412,6 +412,12 @@ class PhysicalParams:
             target.copy_(value)
 
 
+@wp.func
+def friction_force(friction: float, velocity: float):
+    """A joint's Coulomb friction (N or N m) against its velocity (m/s or rad/s), smoothed by FRICTION_VELOCITY."""
+    return friction * wp.tanh(velocity / FRICTION_VELOCITY)
+
+
 @wp.kernel(enable_backward=False)
 def add_friction(dofs_per_env: int, role_dof: wp.array(dtype=wp.int32), actuator_f: wp.array2d(dtype=float),
                  friction: wp.array2d(dtype=float), joint_qd: wp.array(dtype=float), joint_f: wp.array(dtype=float)):
@@ -420,7 +426,7 @@ def add_friction(dofs_per_env: int, role_dof: wp.array(dtype=wp.int32), actuator
     env = wp.tid()
     for r in range(friction.shape[1]):
         dof = env * dofs_per_env + role_dof[r]
-        joint_f[dof] = actuator_f[env, r] - friction[env, r] * wp.tanh(joint_qd[dof] / FRICTION_VELOCITY)
+        joint_f[dof] = actuator_f[env, r] - friction_force(friction[env, r], joint_qd[dof])
 
 
 __getattr__ = renamed(__name__, {"Physics": "PhysicalParams"})

@@ -31,7 +31,7 @@ import warp as wp
 
 from ..engine.env import BatchedEnv
 from ..engine.kernels import TaskFunctions, kernel_params, params_of
-from ..engine.randomization import FRICTION_VELOCITY, EnvPhysics, Layout, ModelFields, write_env
+from ..engine.randomization import EnvPhysics, Layout, ModelFields, friction_force, write_env
 from ..engine.scene import build_scene, make_solver
 from ..engine.streams import StreamOrder
 
@@ -89,7 +89,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
         env = wp.tid()
         for r in range(num_joints):
             dof = env * dofs_per_env + role_dofs[r]
-            joint_f[dof] = forces[env, r] - friction[env, r] * wp.tanh(joint_qd[dof] / FRICTION_VELOCITY)
+            joint_f[dof] = forces[env, r] - friction_force(friction[env, r], joint_qd[dof])
 
     @kernel
     def read_step(p: Params, joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
