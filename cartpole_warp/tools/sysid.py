@@ -285,7 +285,7 @@ def fit(args: SysidArgs) -> dict:
     plot(output / "sysid_fit.png", recording, starts, out.q.detach()[:, best_rows].cpu().numpy(), dt,
          column_names(roles, sliders)[0])
     write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
-    preset = write_preset(output / "sysid_preset.yaml", args, stage, fitted, roles, probe.physics.bodies)
+    preset = write_preset(output / "sysid_preset.yaml", args, stage, fitted, roles)
     print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
           f"(python train.py --task {args.task} --config {preset})")
     return result
@@ -328,7 +328,7 @@ def plot(path: Path, recording: Recording, starts: list[int], simulated: np.ndar
     plt.close(figure)
 
 
-def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, roles: tuple[str, ...], bodies) -> Path:
+def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, roles: tuple[str, ...]) -> Path:
     """A preset whose randomization draws the fitted physics (times 1 -/+ ``args.randomize``) at every reset."""
     low, high = 1.0 - args.randomize, 1.0 + args.randomize
     sections: dict = {}
