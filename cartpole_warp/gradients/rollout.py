@@ -14,9 +14,11 @@ keeps its joint-space mass matrix and the arrays derived from it on the solver a
 ``sim.mass_matrix_interval`` physics steps, so each build of the horizon has a solver of its own (a tape through one
 reused solver reads the last build's arrays backwards); the rest of a step's scratch lives on its states. The bodies'
 spatial inertias, which a solver derives from the masses when it is made, are derived again on the tape from the
-parameters. A result is backpropagated once, before the next call (else RuntimeError: the tapes and arrays are the
-rollout's, reused call after call). Ends of episodes (termination, the time limit) are not applied: a rollout runs
-its H steps. The model is the env's stage, built again with gradients (``sim.gradients``: Newton's kernels with
+parameters. With ``sim.capture`` (not 'off') each tape's forward, backward and zeroing are captured as graphs on
+first use and replayed after (``CapturedTape``). A result is backpropagated once, before the next call (else
+RuntimeError: the tapes and arrays are the rollout's, reused call after call). Ends of episodes (termination, the
+time limit) are not applied: a rollout runs its H steps (``Trajectory.terminated`` says where the task's rule would
+end one). The model is the env's stage, built again with gradients (``sim.gradients``: Newton's kernels with
 their adjoints); the env's own kernels stay adjoint-free, and training never builds this.
 """
 
@@ -30,7 +32,7 @@ import torch
 import warp as wp
 
 from ..engine.env import BatchedEnv
-from ..engine.kernels import TaskFunctions, kernel_params, params_of
+from ..engine.kernels import END_NONE, TaskFunctions, kernel_params, params_of
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, friction_force, write_env
 from ..engine.scene import build_scene, make_solver
 from ..engine.streams import StreamOrder
@@ -39,14 +41,17 @@ from ..engine.streams import StreamOrder
 @dataclass
 class Trajectory:
     """A rollout's tensors: joint positions and velocities (H + 1, N, joints) in the task's role order (m or rad, m/s
-    or rad/s), observations (H + 1, N, num_obs), the actions applied (H, N, num_actions, before clipping) and the
-    rewards (H, N) of each step."""
+    or rad/s), observations (H + 1, N, num_obs), the actions applied (H, N, num_actions, before clipping), the
+    rewards (H, N) of each step (0 where the state is beyond ``sim.divergence_limit`` or non-finite, as the env's)
+    and whether the state after it ends the episode by the task's rule or that limit (``terminated``, (H, N) bool, no
+    gradient; the rollout runs on regardless)."""
 
     q: torch.Tensor
     qd: torch.Tensor
     obs: torch.Tensor
     actions: torch.Tensor
     rewards: torch.Tensor
+    terminated: torch.Tensor
 
 
 @functools.cache
@@ -93,9 +98,10 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
 
     @kernel
     def read_step(p: Params, joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
-                  role_dofs: wp.array(dtype=int), dofs_per_env: int, actions: wp.array2d(dtype=float),
+                  role_dofs: wp.array(dtype=int), dofs_per_env: int, divergence_limit: float,
+                  actions: wp.array2d(dtype=float),
                   q_out: wp.array2d(dtype=float), qd_out: wp.array2d(dtype=float), obs: wp.array2d(dtype=float),
-                  rewards: wp.array(dtype=float)):
+                  rewards: wp.array(dtype=float), terminated: wp.array(dtype=wp.int32)):
         env = wp.tid()
         q, qd, a = Joints(), Joints(), Actions()
         for r in range(num_joints):
@@ -105,8 +111,13 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
             qd_out[env, r] = qd[r]
         for i in range(num_actions):
             a[i] = wp.clamp(actions[env, i], -1.0, 1.0)
-        reward, _end = fns.reward_and_end(q, qd, a, p)
-        rewards[env] = reward
+        reward, end = fns.reward_and_end(q, qd, a, p)
+        within = 1  # as the env judges a state: beyond the divergence limit (or NaN) ends it with reward 0
+        for r in range(num_joints):
+            if not (wp.abs(q[r]) <= divergence_limit and wp.abs(qd[r]) <= divergence_limit):
+                within = 0
+        rewards[env] = wp.where(within == 1, reward, 0.0)
+        terminated[env] = wp.where(end != END_NONE or within == 0, 1, 0)
         o = fns.observe(q, qd, p)
         for i in range(num_obs):
             obs[env, i] = o[i]
@@ -130,6 +141,54 @@ def zeros(shape: tuple, device: str, dtype=float) -> wp.array:
     return wp.zeros(shape, dtype=dtype, device=device, requires_grad=True)
 
 
+class CapturedTape:
+    """A ``wp.Tape`` of ``launch()``'s kernels. The first forward runs op by op (the solver allocates its scratch
+    then); with ``capture`` the second is recorded on a new tape inside a graph capture, and from then on the forward,
+    the tape's backward and its zeroing of the gradients are each captured on first use and replayed (the launches'
+    arrays stay put, so the graphs stay valid): Warp's Python per launch and per adjoint is most of a step's time
+    otherwise, on a CPU as on a GPU. Without ``capture`` every forward records a new tape."""
+
+    def __init__(self, device: str, launch: Callable[[], None], capture: bool):
+        self.device, self.launch, self.capture = device, launch, capture
+        self.tape: wp.Tape | None = None
+        self.graphs: dict[str, Any] = {}
+
+    def _replay(self, name: str, work: Callable[[], None]):
+        if name not in self.graphs:
+            with wp.ScopedCapture(device=self.device) as captured:
+                work()
+            self.graphs[name] = captured.graph
+        wp.capture_launch(self.graphs[name])
+
+    def _record(self):
+        with self.tape:
+            self.launch()
+
+    def forward(self):
+        if "forward" in self.graphs:
+            wp.capture_launch(self.graphs["forward"])
+            return
+        warmed = self.tape is not None
+        self.tape = wp.Tape()
+        if self.capture and warmed:
+            self._replay("forward", self._record)
+        else:
+            self._record()
+
+    def backward(self):
+        if "forward" in self.graphs:
+            self._replay("backward", self.tape.backward)
+        else:
+            self.tape.backward()
+
+    def zero(self):
+        """Zero the gradients the tape's backward adds to (captured once a backward has named them all)."""
+        if "backward" in self.graphs:
+            self._replay("zero", self.tape.zero)
+        elif self.tape is not None:
+            self.tape.zero()
+
+
 class EnvStep:
     """The arrays, states and solvers of one env step of the horizon (its ``decimation`` physics steps)."""
 
@@ -140,6 +199,7 @@ class EnvStep:
         self.forces = zeros((n, j), dev)
         self.q_out, self.qd_out = zeros((n, j), dev), zeros((n, j), dev)
         self.obs, self.rewards = zeros((n, r.num_obs), dev), zeros((n,), dev)
+        self.terminated = wp.zeros(n, dtype=wp.int32, device=dev)
         model = r.model
         self.states = [model.state(requires_grad=True) for _ in range(r.decimation + 1)]
         self.controls = [model.control() for _ in range(r.decimation)]
@@ -152,29 +212,28 @@ class EnvStep:
                 raise ValueError("a differentiable rollout needs Featherstone without mimic joints or tile GEMMs "
                                  "(Newton 1.8's solver, whose step counter picks when the mass matrix is built)")
             solver.body_I_m, solver.body_X_com = r.inertia_solver.body_I_m, r.inertia_solver.body_X_com
-        self.tape: wp.Tape | None = None
+        self.tape = CapturedTape(dev, functools.partial(self.launch, r), r.capture)
+        """The step: ``q``, ``qd``, ``actions`` in; ``q_out``, ``qd_out``, ``obs``, ``rewards``, ``terminated``
+        out."""
 
-    def run(self, rollout: "DifferentiableRollout"):
-        """The step on a new tape: ``q``, ``qd``, ``actions`` in; ``q_out``, ``qd_out``, ``obs``, ``rewards`` out."""
+    def launch(self, rollout: "DifferentiableRollout"):
         r, k, dev, n = rollout, rollout.kernels, rollout.device, rollout.num_envs
         dofs = r.dofs_per_env
-        self.tape = wp.Tape()
-        with self.tape:
-            first = self.states[0]
-            wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.role_dofs, dofs],
-                      outputs=[first.joint_q, first.joint_qd], device=dev)
-            wp.launch(k.actuate, n, inputs=[r.params, self.actions, r.actuator_scale], outputs=[self.forces],
-                      device=dev)
-            for i in range(r.decimation):
-                state, control = self.states[i], self.controls[i]
-                wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.role_dofs, dofs, state.joint_qd],
-                          outputs=[control.joint_f], device=dev)
-                solver = self.solvers[i // r.mass_matrix_interval]
-                solver._step = i % r.mass_matrix_interval  # 0: build the mass matrix, else read the one built
-                solver.step(state, self.states[i + 1], control, None, r.physics_dt)
-            last = self.states[-1]
-            wp.launch(k.read_step, n, inputs=[r.params, last.joint_q, last.joint_qd, r.role_dofs, dofs, self.actions],
-                      outputs=[self.q_out, self.qd_out, self.obs, self.rewards], device=dev)
+        first = self.states[0]
+        wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.role_dofs, dofs],
+                  outputs=[first.joint_q, first.joint_qd], device=dev)
+        wp.launch(k.actuate, n, inputs=[r.params, self.actions, r.actuator_scale], outputs=[self.forces], device=dev)
+        for i in range(r.decimation):
+            state, control = self.states[i], self.controls[i]
+            wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.role_dofs, dofs, state.joint_qd],
+                      outputs=[control.joint_f], device=dev)
+            solver = self.solvers[i // r.mass_matrix_interval]
+            solver._step = i % r.mass_matrix_interval  # 0: build the mass matrix, else read the one built
+            solver.step(state, self.states[i + 1], control, None, r.physics_dt)
+        last = self.states[-1]
+        wp.launch(k.read_step, n, inputs=[r.params, last.joint_q, last.joint_qd, r.role_dofs, dofs,
+                                          r.sim.divergence_limit, self.actions],
+                  outputs=[self.q_out, self.qd_out, self.obs, self.rewards, self.terminated], device=dev)
 
 
 def as_warp(array: wp.array, tensor: torch.Tensor):
@@ -206,11 +265,8 @@ class PhysicsFunction(torch.autograd.Function):
         ctx.rollout, ctx.call = rollout, rollout.calls
         for array, tensor in zip(rollout.physics_arrays, (mass, com, damping, friction, actuator_scale, gravity)):
             as_warp(array, tensor)
-        rollout.physics_tape = wp.Tape()
-        with rollout.order, rollout.physics_tape:
-            wp.launch(rollout.kernels.write_physics, rollout.num_envs, inputs=[rollout.layout, rollout.env_physics],
-                      outputs=[rollout.model_fields], device=rollout.device)
-            rollout.inertia_solver._update_body_inertial_buffers()
+        with rollout.order:
+            rollout.physics_tape.forward()
         return torch.zeros((), device=mass.device, requires_grad=True)
 
     @staticmethod
@@ -232,7 +288,7 @@ class StepFunction(torch.autograd.Function):
         as_warp(step.qd, qd)
         as_warp(step.actions, actions)
         with rollout.order:
-            step.run(rollout)
+            step.tape.forward()
         return tuple(wp.to_torch(a).clone() for a in (step.q_out, step.qd_out, step.obs, step.rewards))
 
     @staticmethod
@@ -256,10 +312,8 @@ class ObserveFunction(torch.autograd.Function):
         ctx.rollout, ctx.call = rollout, rollout.calls
         as_warp(rollout.q0, q)
         as_warp(rollout.qd0, qd)
-        rollout.observe_tape = wp.Tape()
-        with rollout.order, rollout.observe_tape:
-            wp.launch(rollout.kernels.observe, rollout.num_envs, inputs=[rollout.params, rollout.q0, rollout.qd0],
-                      outputs=[rollout.obs0], device=rollout.device)
+        with rollout.order:
+            rollout.observe_tape.forward()
         return wp.to_torch(rollout.obs0).clone()
 
     @staticmethod
@@ -322,11 +376,23 @@ class DifferentiableRollout:
         fields.joint_damping, fields.gravity = m.joint_damping, m.gravity
         self.model_fields = fields
         self.q0, self.qd0, self.obs0 = zeros((n, roles), dev), zeros((n, roles), dev), zeros((n, self.num_obs), dev)
+        self.capture = cfg.sim.capture != "off"
         self.steps = [EnvStep(self) for _ in range(horizon)]
-        self.physics_tape = self.observe_tape = None
+        self.physics_tape = CapturedTape(self.device, self._write_physics, self.capture)
+        self.observe_tape = CapturedTape(self.device, self._observe, self.capture)
         self.parameter_names = [name for name in env.physics.settable() if name != "action_delay_steps"]
         """The physical parameters a rollout takes (``stage_params``' names): per joint role its body's mass and
         centre of mass, the joint's damping and friction; the actuator scale and gravity."""
+
+    def _write_physics(self):
+        """The physical parameters into the model, and the spatial inertias derived from them."""
+        wp.launch(self.kernels.write_physics, self.num_envs, inputs=[self.layout, self.env_physics],
+                  outputs=[self.model_fields], device=self.device)
+        self.inertia_solver._update_body_inertial_buffers()
+
+    def _observe(self):
+        wp.launch(self.kernels.observe, self.num_envs, inputs=[self.params, self.q0, self.qd0], outputs=[self.obs0],
+                  device=self.device)
 
     def stage_params(self, requires_grad: bool = False) -> dict[str, torch.Tensor]:
         """The stage's physical parameters, (N,) float32 tensors on the device, by name."""
@@ -356,16 +422,17 @@ class DifferentiableRollout:
         if (actions is None) == (policy is None):
             raise ValueError("give actions (H, N, num_actions) or a policy, not both")
         self.calls += 1
-        for tape in (self.physics_tape, self.observe_tape, *(step.tape for step in self.steps)):
-            if tape is not None:
+        with self.order:
+            for tape in (self.physics_tape, self.observe_tape, *(step.tape for step in self.steps)):
                 tape.zero()
         token = PhysicsFunction.apply(self, *self._physics_tensors(params or {}))
         q, qd = q0, qd0
         obs = ObserveFunction.apply(self, q, qd)
-        qs, qds, observations, applied, rewards = [q], [qd], [obs], [], []
+        qs, qds, observations, applied, rewards, terminated = [q], [qd], [obs], [], [], []
         for t, step in enumerate(self.steps):
             action = actions[t] if actions is not None else policy(obs)
             q, qd, obs, reward = StepFunction.apply(self, step, token, q, qd, action)
             qs.append(q), qds.append(qd), observations.append(obs), applied.append(action), rewards.append(reward)
+            terminated.append(wp.to_torch(step.terminated).bool())
         return Trajectory(torch.stack(qs), torch.stack(qds), torch.stack(observations), torch.stack(applied),
-                          torch.stack(rewards))
+                          torch.stack(rewards), torch.stack(terminated))
