@@ -1,9 +1,10 @@
-"""Train a task with rsl-rl PPO on the batched Warp/Newton env.
+"""Train a task on the batched Warp/Newton env with rsl-rl PPO, or by analytic policy gradients through the simulator.
 
     python train.py --num-envs 4096 --device cpu          # cartpole-balance, a run in logs/rsl_rl/cartpole-balance/
     python train.py --task cartpole-swingup               # another registered task (listed below)
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point
+    python train.py --algorithm apg                       # backpropagation through the simulator (its own defaults)
     python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help-all lists them all
     torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096   # 2 GPUs, 4096 envs on each
 
@@ -38,7 +39,7 @@ from .cli import (
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
-from .rl.config import TrainConfig, checked, gpu_settings, train_config
+from .rl.config import TrainConfig, apg_settings, checked, gpu_settings, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
@@ -87,7 +88,7 @@ class IterationHooks(list):
 
 
 ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-name": "--agent.run-name",
-                         "--logger": "--agent.logger"}
+                         "--logger": "--agent.logger", "--algorithm": "--agent.learner"}
 """train.py's short flags."""
 
 
@@ -106,8 +107,8 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
 def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, TrainArgs]:
     """``resolve``, and the parsed arguments."""
     argv = with_default_value(argv, "--resume", "latest")
-    first = peek(expand_aliases(argv, ENV_ALIASES), task=None, config=None, resume=None, checkpoint=None,
-                 log_dir="logs", **{"agent.experiment_name": None, "env.device": None})
+    first = peek(expand_aliases(argv, ALIASES), task=None, config=None, resume=None, checkpoint=None,
+                 log_dir="logs", **{"agent.experiment_name": None, "env.device": None, "agent.learner": None})
     checkpoint = run_dir = None
     if (first.resume or first.checkpoint) and not asks_help(argv):
         if first.config:
@@ -124,7 +125,8 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
         if first.task and first.task != base.task:
             raise ConfigError(f"--task {first.task} cannot change the task of {run_dir} ({base.task})")
     else:
-        base = train_config(first.task or tasks.DEFAULT_TASK, first.config, getattr(first, "env.device"))
+        base = train_config(first.task or tasks.DEFAULT_TASK, first.config, getattr(first, "env.device"),
+                            getattr(first, "agent.learner"))
     cls = TrainArgs[type(base.env.task)]
     args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES)
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
@@ -203,6 +205,9 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
     if checkpoint is None and (chosen := gpu_settings(training.cfg)):  # a resumed run keeps its saved settings
         print(f"on a GPU the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
               "(its CPU settings differ; a flag changes either)", flush=True)
+    if checkpoint is None and (chosen := apg_settings(training.cfg)):
+        print(f"with --algorithm apg the task's settings: {', '.join(f'{n} {v}' for n, v in chosen.items())} "
+              "(a flag changes any)", flush=True)
     hooks = IterationHooks()
     if args.viewer == "viser":
         from .viz.web import TrainingView

@@ -1,6 +1,7 @@
 """The sweep (``tools/sweep.py``): variants as train.py flags, failed runs unsolved, a seed repeated exactly in one
 process."""
 
+import json
 
 import pytest
 import torch
@@ -50,7 +51,20 @@ def test_a_variant_that_sets_a_flag_the_sweep_sets_is_refused_with_the_sweeps_op
     from cartpole_warp.tools.sweep import main
 
     with pytest.raises(SystemExit) as stop:
-        main(["--variants", variant, "--seeds", "0"])
+        main(["--variants", variant, "--seeds", "0", "--num-envs", "64", "--max-iterations", "3"])
     assert stop.value.code == 2
     error = capsys.readouterr().err
     assert "is set by the sweep for every run" in error and option in error
+
+
+def test_a_variant_of_other_flags_runs_with_its_own_defaults(tmp_path, capsys):
+    """A variant's flags that the sweep does not set pass (whatever their order), and without --num-envs each run
+    takes its own env count: here ``--algorithm apg``'s."""
+    from cartpole_warp import tasks
+    from cartpole_warp.tools.sweep import main
+
+    assert main(["--variants", "algorithm=apg agent.apg.gamma=0.98", "--seeds", "0", "--max-iterations", "2",
+                 "--no-stop-when-solved", "--log-dir", str(tmp_path)]) == 0
+    assert "| `--algorithm apg --agent.apg.gamma 0.98` | 0 | not solved |" in capsys.readouterr().out
+    summary = json.loads(next(tmp_path.rglob("summary.json")).read_text())
+    assert summary["num_envs"] == tasks.get("cartpole-balance").apg_defaults["env"]["num_envs"]

@@ -63,17 +63,19 @@ class TrainConfig(RunSettings, Generic[TaskT]):
                 f"({self.eval.max_interval})")
         rollout = self.env.num_envs * self.agent.num_steps_per_env
         mini_batches = self.agent.algorithm.num_mini_batches
-        require(rollout % mini_batches == 0,
+        require(self.agent.learner != "ppo" or rollout % mini_batches == 0,
                 f"agent.algorithm.num_mini_batches ({mini_batches}) must divide num_envs * agent.num_steps_per_env "
                 f"({rollout})")
         return self
 
 
-def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str | None = None) -> TrainConfig:
+def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str | None = None,
+                 learner: str | None = None) -> TrainConfig:
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
     refuses a preset for another task; on ``device`` where given), then the dataclass defaults, the task's (with its
-    ``gpu_defaults`` where the env's device is CUDA) and the preset's agent and run settings (flags may still change
-    it: ``validate`` after them)."""
+    ``gpu_defaults`` where the env's device is CUDA, then its ``apg_defaults`` where ``learner`` (the flag) or the
+    preset says 'apg') and the preset's agent and run settings (flags may still change it: ``validate`` after
+    them)."""
     preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
     env = tasks.env_config(task, preset, preset_data=preset_data, device=device)
     cls = TrainConfig[type(env.task)]
@@ -82,6 +84,8 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     data = merge(dataclasses.asdict(base), rest)
     if on_gpu(env.device):
         data = merge(data, base.task_spec.gpu_defaults)
+    if (learner or preset_data.get("agent", {}).get("learner")) == "apg":
+        data = merge(merge(data, base.task_spec.apg_defaults), {"agent": {"learner": "apg"}})
     if preset is not None:
         data = merge(data, overrides_dict({key: value for key, value in preset_data.items() if key != "env"},
                                           f"preset {preset!r}:"))
@@ -96,8 +100,17 @@ def on_gpu(device: str) -> bool:
 def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
     """The settings the task chooses for a GPU (``Task.gpu_defaults``), by dotted name, with the values ``cfg`` has
     (a flag may have changed them); {} where ``cfg`` runs on a CPU or the task chooses none."""
-    if not on_gpu(cfg.env.device):
-        return {}
+    return chosen_settings(cfg, cfg.task_spec.gpu_defaults) if on_gpu(cfg.env.device) else {}
+
+
+def apg_settings(cfg: TrainConfig) -> dict[str, object]:
+    """The settings the task chooses for ``--algorithm apg`` (``Task.apg_defaults``), as ``gpu_settings``; {} where
+    ``cfg`` trains with PPO."""
+    return chosen_settings(cfg, cfg.task_spec.apg_defaults) if cfg.agent.learner == "apg" else {}
+
+
+def chosen_settings(cfg: TrainConfig, defaults: dict) -> dict[str, object]:
+    """The leaves of ``defaults`` (nested overrides) by dotted name, with the values ``cfg`` has."""
 
     def leaves(data: dict, prefix: str = "") -> list[str]:
         return [name for key, value in data.items()
@@ -109,7 +122,22 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
             node = getattr(node, part)
         return node
 
-    return {name: value(name) for name in leaves(cfg.task_spec.gpu_defaults)}
+    return {name: value(name) for name in leaves(defaults)}
+
+
+def with_env_preset(cfg: TrainConfig, preset: str) -> TrainConfig:
+    """``cfg`` with the ``env`` section of ``preset`` on top, its ``randomization`` replacing the run's whole (a trained
+    run played on other physics: its training settings stay); ConfigError where the preset is another task's or sets
+    more than the env."""
+    data = tasks.preset_overrides(cfg.task, preset)
+    extra = sorted(set(data) - {"env", "task"})
+    require(not extra, f"--config {preset} on a trained run may set only env settings (the run's training settings "
+                       f"stay); it sets {', '.join(extra)}")
+    env = overrides_dict(data.get("env", {}), f"preset {preset!r}: env:")
+    base = dataclasses.asdict(cfg)
+    if "randomization" in env:  # the preset's physics, not a mix with the run's ranges
+        base["env"]["randomization"] = dataclasses.asdict(type(cfg.env.randomization)())
+    return from_dict(TrainConfig[type(cfg.env.task)], merge(base, {"env": env}), f"the run's config, preset {preset!r}")
 
 
 def load_train_config(data: dict, where: str) -> TrainConfig:
@@ -121,4 +149,5 @@ def load_train_config(data: dict, where: str) -> TrainConfig:
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",
-           "TrainConfig", "checked", "gpu_settings", "load_train_config", "train_config"]
+           "TrainConfig", "apg_settings", "checked", "gpu_settings", "load_train_config", "train_config",
+           "with_env_preset"]

@@ -118,12 +118,7 @@ class TaskRunner(OnPolicyRunner):
         self._end_iteration = self._first_iteration + num_learning_iterations
         self._start = self._tick = time.perf_counter()
         for it in range(self._first_iteration, self._end_iteration):
-            self._clock.mark(0)
-            with torch.inference_mode():
-                obs = self._collect(obs)
-            self._clock.mark(1)
-            loss_dict = self.alg.update()
-            self._clock.mark(2)
+            obs, loss_dict = self._iteration(obs)
             self.current_learning_iteration = it
             self._end_of_iteration(it, loss_dict)
             if self.stop_reason is not None:
@@ -133,6 +128,17 @@ class TaskRunner(OnPolicyRunner):
         if self.run_dir is not None:
             self.save(str(self.run_dir / f"model_{self.current_learning_iteration}.pt"))
             self.logger.stop_logging_writer()
+
+    def _iteration(self, obs: TensorDict) -> tuple[TensorDict, dict]:
+        """One iteration: the rollout (``_collect``), then PPO's update, timed apart; the last observations and the
+        losses out."""
+        self._clock.mark(0)
+        with torch.inference_mode():
+            obs = self._collect(obs)
+        self._clock.mark(1)
+        loss_dict = self.alg.update()
+        self._clock.mark(2)
+        return obs, loss_dict
 
     def release_graphs(self):
         """Free the captured rollout and update (``TorchGraph.release``: before the process group is destroyed);
@@ -193,12 +199,12 @@ class TaskRunner(OnPolicyRunner):
         if self.train_cfg.console == "rsl_rl":
             self.logger.log(it=it, start_it=self._first_iteration, total_it=self._end_iteration,
                             collect_time=collect_time, learn_time=learn_time, loss_dict=loss_dict,
-                            learning_rate=self.alg.learning_rate, action_std=self.alg.get_policy().output_std,
+                            learning_rate=self.alg.learning_rate, action_std=self.action_std,
                             rnd_weight=None)
         elif self.gpu_global_rank == 0:
             if self.logger.writer is not None:
                 scalars = metrics(stats, evaluation, loss_dict, self.alg.learning_rate,
-                                  self.alg.get_policy().output_std.mean().item(), steps / iteration_time, collect_time,
+                                  self.action_std.mean().item(), steps / iteration_time, collect_time,
                                   learn_time)
                 for tag, value in scalars.items():
                     self.logger.writer.add_scalar(tag, value, it)
@@ -254,7 +260,7 @@ class TaskRunner(OnPolicyRunner):
 
     def save(self, path: str, infos: dict | None = None) -> None:
         """Write the models, optimizer, iteration and progress to ``path`` atomically."""
-        saved = self.alg.save()
+        saved = self._state_dict()
         saved["iter"] = self.current_learning_iteration
         saved["infos"] = infos if infos is not None else dataclasses.asdict(self.progress)
         atomic_write(Path(path), lambda tmp: torch.save(saved, tmp))
@@ -268,13 +274,26 @@ class TaskRunner(OnPolicyRunner):
         stays."""
         loaded = read_checkpoint(path, map_location or self.device)
         with networks_must_fit(path):
-            self.alg.load(loaded, load_cfg, strict)
+            self._load_state_dict(loaded, load_cfg, strict)
         infos = loaded.get("infos") or {}
         if load_cfg is None or load_cfg.get("iteration"):
             self.current_learning_iteration = loaded["iter"] + 1
             self.progress = Progress(**{f.name: infos[f.name] for f in dataclasses.fields(Progress)
                                         if f.name in infos})
         return infos
+
+    @property
+    def action_std(self) -> torch.Tensor:
+        """The standard deviation of the training's actions, per action."""
+        return self.alg.get_policy().output_std
+
+    def _state_dict(self) -> dict:
+        """What a checkpoint holds besides the iteration and the progress: rsl-rl's networks and optimizer."""
+        return self.alg.save()
+
+    def _load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+        """Load what ``_state_dict`` saved (``load_cfg``: rsl-rl's choice of parts; None: all)."""
+        self.alg.load(loaded, load_cfg, strict)
 
     def policy(self) -> Policy:
         """The deterministic policy (the Gaussian's mean)."""

@@ -87,6 +87,16 @@ class Training:
         self.run_dir, self.ranks = Path(run_dir), ranks
         start = time.perf_counter()
         env_cfg = ranks.env_config(cfg.env, torch.cuda.device_count())
+        apg = cfg.agent.learner == "apg"
+        if apg:
+            from .apg import check_apg
+
+            check_apg(cfg)
+            if ranks.distributed:
+                raise ConfigError("--algorithm apg trains in one process (not under torchrun)")
+            # Newton's modules with their adjoints for every env of the process (the evaluation's too): the option
+            # is Newton's, per module, so envs built without it would compile them again
+            env_cfg = dataclasses.replace(env_cfg, sim=dataclasses.replace(env_cfg.sim, gradients=True))
         check_memory(cfg, resolve_device(env_cfg.device))
         torch.manual_seed(env_cfg.seed)
         cfg.apply_torch_threads()
@@ -102,8 +112,11 @@ class Training:
                 self.eval_env = self.task.env_class(dataclasses.replace(env_cfg, num_envs=cfg.eval.num_envs,
                                                                         seed=cfg.env.seed))
         with timed(self.timing_s, "networks"):
-            self.runner = TaskRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
-                                         self.run_dir if ranks.writes else None, self.eval_env)
+            runner_class = TaskRunner
+            if apg:
+                from .apg import ApgRunner as runner_class
+            self.runner = runner_class(self.env, dataclasses.replace(cfg, env=env_cfg),
+                                       self.run_dir if ranks.writes else None, self.eval_env)
         with timed(self.timing_s, "eval_env"):
             self.runner.prepare_evaluation()
             if resume_from is not None:

@@ -18,6 +18,9 @@ Schedule = Literal["adaptive", "fixed"]
 Algorithm = Literal["PPO", "SyncFreePPO"]
 """rsl-rl's ``PPO``, or ``SyncFreePPO`` (``cartpole_warp.rl.ppo``: the same update without host syncs)."""
 MetricsLogger = Literal["tensorboard", "wandb", "none"]
+Learner = Literal["ppo", "apg"]
+"""'ppo' (rsl-rl's PPO on the env's transitions) or 'apg' (``rl.apg``: analytic policy gradients through the
+simulator)."""
 
 
 @dataclass
@@ -119,6 +122,40 @@ class PpoConfig:
 
 
 @dataclass
+class ApgConfig:
+    """Short-horizon analytic policy gradients (``rl.apg``, after SHAC: Xu et al., ICLR 2022): each iteration
+    backpropagates the return of a window of ``num_steps_per_env`` env steps of every env, plus the critic's value of
+    where each window ends, through the simulator into the actor; the critic learns TD(lambda) targets of the same
+    windows. The defaults were chosen by experiment on the balance (docs/benchmarks.md)."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    actor_learning_rate: Positive = 5.0e-3
+    """Adam learning rate of the actor, decayed linearly to 0 at the end of each train.py call where
+    ``linear_decay`` (a resumed run decays again over the iterations it adds)."""
+    critic_learning_rate: Positive = 1.0e-3
+    """Adam learning rate of the critic (decayed as the actor's)."""
+    linear_decay: Flag = True
+    """Decay both learning rates linearly to 0 over each train.py call's ``max_iterations``."""
+    gamma: Annotated[Fraction, pydantic.Field(gt=0)] = 0.99
+    """Discount factor per env step."""
+    lam: Fraction = 0.95
+    """TD(lambda) of the critic's targets."""
+    critic_iterations: Count = 16
+    """Passes over each window's states to fit the critic."""
+    critic_mini_batches: Count = 4
+    """Mini-batches per pass."""
+    target_critic_alpha: Fraction = 0.2
+    """The value of a window's end comes from a target critic: after each iteration target = alpha * target + (1 -
+    alpha) * critic."""
+    max_grad_norm: Positive = 1.0
+    """Gradient norm clip of both networks."""
+    action_noise_std: NonNegative = 0.0
+    """Gaussian noise added to the actor's actions in the windows (the gradient passes through it); 0: the
+    deterministic policy."""
+
+
+@dataclass
 class RunnerConfig:
     """rsl-rl's ``OnPolicyRunner`` configuration (its ``train_cfg``), plus the run's length and name."""
 
@@ -149,6 +186,10 @@ class RunnerConfig:
     (whose per-step bookkeeping does)."""
     torch_compile_mode: Literal["default", "max-autotune-no-cudagraphs"] | None = None
     """rsl-rl's torch.compile of the actor and critic (None: not compiled)."""
+    learner: Learner = "ppo"
+    """'ppo': rsl-rl's PPO (``algorithm``); 'apg': analytic policy gradients through the simulator (``apg``; state
+    tasks on SolverFeatherstone, one process)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
+    apg: ApgConfig = field(default_factory=ApgConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)

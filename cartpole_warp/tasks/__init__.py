@@ -27,6 +27,14 @@ DEFAULT_TASK = "cartpole-balance"
 """The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""
 
 
+APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,
+                                                    "actor": {"obs_normalization": False},
+                                                    "critic": {"obs_normalization": False}}}
+"""A task's settings for ``--algorithm apg`` unless it names its own (``Task.apg_defaults``): 64 envs, windows of 32
+env steps, no observation normalisation (with it the swing-up's actor stalled); chosen on the balance and the swing-up
+(docs/benchmarks.md, "Training by backpropagation")."""
+
+
 @dataclass(frozen=True)
 class Task:
     """What the machinery needs to know of a task."""
@@ -49,6 +57,9 @@ class Task:
     evaluation as much as a large one; on a CPU both cost their samples). train.py names them in its first lines. A
     variant made with ``dataclasses.replace`` inherits them: give it its own (``{}``: none) unless measured with
     them."""
+    apg_defaults: dict = field(default_factory=lambda: APG_DEFAULTS)
+    """Overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run trains with ``--algorithm apg``
+    (analytic policy gradients: few envs, longer windows); train.py names them in its first lines."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
 
@@ -67,6 +78,8 @@ def register(task: Task) -> Task:
                         overrides_errors(task.defaults, EnvConfig[task.env_class.config_class]))
     raise_config_errors(f"task {task.name!r}: gpu_defaults", overrides_errors(task.gpu_defaults)
                         + ["env settings do not depend on the device"] * ("env" in task.gpu_defaults))
+    raise_config_errors(f"task {task.name!r}: apg_defaults",
+                        overrides_errors(task.apg_defaults, EnvConfig[task.env_class.config_class]))
     _TASKS[task.name] = task
     return task
 

@@ -6,7 +6,7 @@ docstring."""
 from dataclasses import dataclass, replace
 
 from ..settings.config import Name, merge
-from . import SolvedRule, register, swingup
+from . import APG_DEFAULTS, SolvedRule, register, swingup
 
 
 @dataclass
@@ -77,4 +77,5 @@ for env_class, words, min_reward_per_step, width, steps_per_env, gym_id in (
                                                          "actor": networks, "critic": networks},
                                                "eval": {"max_interval": 100}}),
         gpu_defaults={},  # the single pole's GPU settings were not measured on the chains
+        apg_defaults=APG_DEFAULTS,  # the swing-up's were not measured here
         gym_ids={f"cartpole_warp/{gym_id}-v0": None}))

@@ -8,7 +8,7 @@ import warp as wp
 
 from ..engine.kernels import END_NONE
 from ..settings.config import merge
-from . import SolvedRule, register, swingup
+from . import APG_DEFAULTS, SolvedRule, register, swingup
 from .cart_base import sparse_reward
 
 
@@ -30,4 +30,5 @@ register(dataclasses.replace(
     # 1.5x the slowest seed measured (1325 iterations): the reward says nothing until the pole is in the band
     defaults=merge(swingup.TASK.defaults, {"agent": {"max_iterations": 2000}}),
     gpu_defaults={},  # its figures were measured without the smooth swing-up's GPU settings
+    apg_defaults=APG_DEFAULTS,  # the swing-up's were not measured here
     gym_ids={"cartpole_warp/CartpoleSwingupSparse-v0": None}))

@@ -55,8 +55,8 @@ class SweepArgs:
     """Seeds to run every variant with."""
     device: str = "cpu"
     """Device of every run."""
-    num_envs: int = 4096
-    """Envs of every run."""
+    num_envs: int | None = None
+    """Envs of every run (default: each run's own, the task's or its learner's)."""
     max_iterations: int | None = None
     """Iterations of every run (default: the variant's own, 150 for the default settings)."""
     play: bool = False
@@ -99,8 +99,9 @@ SWEEP_FLAGS = {"task": "--task", "seed": "--seeds", "env.seed": "--seeds", "devi
                "max-iterations": "--max-iterations", "agent.max-iterations": "--max-iterations",
                "logger": None, "agent.logger": None, "log-dir": "--log-dir", "stop-when-solved": "--stop-when-solved",
                "no-stop-when-solved": "--no-stop-when-solved"}
-"""train.py flags the sweep sets for every run (after a variant's, so they would win): a variant may not set them;
-the value names the sweep's own option."""
+"""train.py flags the sweep sets for every run (after a variant's, so they would win): a variant may not set them
+(the env count and the iterations only where the sweep's --num-envs, --max-iterations are given); the value names
+the sweep's own option."""
 
 
 def variant_flags(variant: str) -> list[str]:
@@ -135,7 +136,7 @@ def run_script(script: str, flags: list[str], fresh_process: bool) -> subprocess
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     """One training run (and play); its summary.json is the result."""
     flags = ["--task", args.task, *variant_flags(variant), "--seed", str(seed), "--device", args.device,
-             "--num-envs", str(args.num_envs),
+             *(["--num-envs", str(args.num_envs)] if args.num_envs else []),
              *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
              "--logger", "none", "--log-dir", str(log_dir),
              "--stop-when-solved" if args.stop_when_solved else "--no-stop-when-solved"]
@@ -231,14 +232,16 @@ def main(argv: list[str] | None = None) -> int:
     with clean_errors(ConfigError):
         tasks.get(args.task)
         require(args.seeds and min(args.seeds) >= 0, f"--seeds must be >= 0, got {args.seeds}")
-        require(args.num_envs >= 1, f"--num-envs must be >= 1, got {args.num_envs}")
+        require(args.num_envs is None or args.num_envs >= 1, f"--num-envs must be >= 1, got {args.num_envs}")
         require(args.max_iterations is None or args.max_iterations >= 1,
                 f"--max-iterations must be >= 1, got {args.max_iterations}")
+        unset = ({"num-envs", "env.num-envs"} if args.num_envs is None else set()) | (
+            {"max-iterations", "agent.max-iterations"} if args.max_iterations is None else set())
         for variant in args.variants:
             for name in (pair.partition("=")[0] for pair in shlex.split(variant)):
-                require(name not in SWEEP_FLAGS,
+                require(name not in SWEEP_FLAGS or name in unset,
                         f"--variants {variant!r}: {name} is set by the sweep for every run"
-                        + (f" (use the sweep's {SWEEP_FLAGS[name]})" if SWEEP_FLAGS[name] else ""))
+                        + (f" (use the sweep's {SWEEP_FLAGS[name]})" if SWEEP_FLAGS.get(name) else ""))
     print(seed_table_header(args.task), flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)

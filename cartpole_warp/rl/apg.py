@@ -1,0 +1,226 @@
+"""``ApgRunner``: training by short-horizon analytic policy gradients through the simulator (SHAC: Xu et al.,
+"Accelerated Policy Learning with Parallel Differentiable Simulation", ICLR 2022), for any state task on
+SolverFeatherstone.
+
+    python train.py --task cartpole-balance --algorithm apg --num-envs 256
+
+Each iteration runs every env ``agent.num_steps_per_env`` env steps on ``gradients.DifferentiableRollout`` under the
+actor's actions and ascends, by the gradient through the simulator's adjoints, the window's discounted rewards plus
+the discounted value (a target critic's) of where each env's window ends: after an episode's end the window's later
+steps count for nothing, and a termination's value is 0. The critic then fits TD(lambda) targets of the window. Envs
+carry their states from window to window; an env whose episode ended starts its next one from the task's reset
+distribution (drawn by the training env, whose physics, randomized or not, the rollout simulates). Everything else is
+``TaskRunner``'s: the same actor and critic networks (rsl-rl's, built by its PPO, whose own update is not used), the
+episode statistics, the evaluations and the solved rule, checkpoints, exports and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import torch
+from tensordict import TensorDict
+
+from ..gradients.rollout import DifferentiableRollout, Trajectory
+from ..settings.config import ConfigError
+from ..wrappers.rsl_rl import RslRlVecEnv
+from .config import TrainConfig
+from .runner import TaskRunner
+
+
+def window_targets(rewards: torch.Tensor, next_values: torch.Tensor, terminated: torch.Tensor, ended: torch.Tensor,
+                   gamma: float, lam: float) -> torch.Tensor:
+    """TD(lambda) returns (H, N) of a window's steps: reward + gamma * the value after it, where the episode ends at the
+    step (``ended``; the value 0 where ``terminated``), else mixed with the next step's return by ``lam`` (the window's
+    last step bootstraps from its value). ``next_values[t]`` is the value of the state after step t."""
+    bootstrap = torch.where(terminated, 0.0, next_values)
+    targets = torch.empty_like(rewards)
+    following = next_values[-1]  # the window's last step: (1 - lam) V + lam V
+    for t in reversed(range(rewards.shape[0])):
+        mixed = (1 - lam) * next_values[t] + lam * following
+        following = rewards[t] + gamma * torch.where(ended[t], bootstrap[t], mixed)
+        targets[t] = following
+    return targets
+
+
+ADAM_BETAS = (0.7, 0.95)
+"""SHAC's Adam betas for both networks (its released configs)."""
+
+
+def check_apg(cfg: TrainConfig):
+    """ConfigError, before anything is built, where ``--algorithm apg`` cannot train ``cfg`` as asked."""
+    problems = {
+        "a task that observes camera frames (the renderer has no adjoint)": cfg.env.camera.enabled,
+        "env.sim.solver other than featherstone (mujoco-warp's adjoints are not here)":
+            cfg.env.sim.solver != "featherstone",
+        "env.randomization.action_delay_steps (the rollout has no action history)":
+            cfg.env.randomization.action_delay_steps > 0,
+        "env.randomization.obs_noise_std (the rollout observes without noise)": cfg.env.randomization.obs_noise_std > 0,
+        "agent.torch_compile_mode (the learner steps the networks itself)": cfg.agent.torch_compile_mode is not None,
+    }
+    named = [what for what, present in problems.items() if present]
+    if named:
+        raise ConfigError(f"--algorithm apg cannot train {cfg.task} with {'; '.join(named)}")
+
+
+class ApgRunner(TaskRunner):
+    """``TaskRunner`` whose iterations are SHAC's (module docstring) instead of PPO's."""
+
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir=None, eval_env=None):
+        check_apg(cfg)
+        super().__init__(env, cfg, log_dir, eval_env)
+        self.settings = cfg.agent.apg
+        self.horizon = cfg.agent.num_steps_per_env
+        self.rollout = DifferentiableRollout(env.env, self.horizon)
+        self.actor, self.critic = self.alg.actor, self.alg.critic
+        self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
+        s = self.settings
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.actor_learning_rate, betas=ADAM_BETAS)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=s.critic_learning_rate,
+                                                 betas=ADAM_BETAS)
+        self.alg.learning_rate = s.actor_learning_rate
+        self.q = self.qd = self.params = None
+        n = env.num_envs
+        self.episode_length = torch.zeros(n, dtype=torch.long, device=self.device)
+        """Env steps each env's episode has run (the statistics' episode lengths)."""
+        self.time_out_count = self.episode_length.clone()
+        """Each env's time-out counter (the episode is truncated when it reaches the time limit; learn() may start it
+        at random: ``init_at_random_ep_len``)."""
+        self.episode_return = torch.zeros(n, device=self.device)
+        self.max_episode_length = int(env.max_episode_length)
+        self.has_time_limit = cfg.env.task.has_time_limit
+
+    def _observations(self, obs: torch.Tensor) -> TensorDict:
+        return TensorDict({"policy": obs}, batch_size=obs.shape[:1], device=obs.device)
+
+    def _act(self, obs: torch.Tensor) -> torch.Tensor:
+        actions = self.actor(self._observations(obs))
+        if self.settings.action_noise_std > 0:
+            actions = actions + self.settings.action_noise_std * torch.randn_like(actions)
+        if actions.requires_grad:  # an env whose state ran away (NaN adjoints) must not cancel the others' update
+            actions.register_hook(torch.nan_to_num)
+        return actions
+
+    def _starts(self, ended: torch.Tensor | None = None):
+        """New episodes from the training env's reset draw where ``ended`` (every env at first): joint states and
+        physics (randomized where the env randomizes at resets)."""
+        base = self.env.env
+        if ended is None:  # the time-out counters learn() set (init_at_random_ep_len), before the reset zeroes them
+            self.time_out_count = self.env.episode_length_buf.to(self.device, torch.long).clone()
+        base.reset()
+        q, qd = base.joint_state()
+        drawn = base.physical_params()
+        params = {name: drawn[name].to(torch.float32) for name in self.rollout.parameter_names}
+        if ended is None:
+            self.q, self.qd, self.params = q, qd, params
+            return
+        self.q = torch.where(ended[:, None], q, self.q)
+        self.qd = torch.where(ended[:, None], qd, self.qd)
+        self.params = {name: torch.where(ended, value, self.params[name]) for name, value in params.items()}
+        self.episode_length = torch.where(ended, 0, self.episode_length)
+        self.time_out_count = torch.where(ended, 0, self.time_out_count)
+        self.episode_return = torch.where(ended, 0.0, self.episode_return)
+
+    def _iteration(self, obs: TensorDict) -> tuple[TensorDict, dict]:
+        if self.q is None:
+            self._starts()
+        self._set_learning_rates()
+        self._clock.mark(0)
+        window = self.rollout(self.q, self.qd, policy=self._act, params=self.params)
+        terminated = window.terminated
+        ended = self._ends(terminated)
+        alive = (torch.cumsum(ended, 0) - ended.long()) == 0  # the steps that count: up to the episode's end
+        self._clock.mark(1)
+        actor_loss, next_values = self._actor_step(window, alive, ended, terminated)
+        seen = self._observations(window.obs[:-1].detach()[alive])
+        self.actor.update_normalization(seen)  # where the networks normalise their inputs (obs_normalization)
+        self.critic.update_normalization(seen)
+        critic_loss = self._critic_step(window, alive, ended, terminated, next_values)
+        self._clock.mark(2)
+        self._carry_on(window, alive, ended, terminated)
+        return obs, {"actor": actor_loss, "value_function": critic_loss}
+
+    def _ends(self, terminated: torch.Tensor) -> torch.Tensor:
+        """(H, N) bool: where an episode ends at each step (``terminated``, or the time limit)."""
+        if not self.has_time_limit:
+            return terminated
+        steps = torch.arange(1, self.horizon + 1, device=self.device)[:, None]
+        return terminated | (self.time_out_count[None] + steps >= self.max_episode_length)
+
+    def _actor_step(self, window: Trajectory, alive, ended, terminated) -> tuple[float, torch.Tensor]:
+        s = self.settings
+        discount = s.gamma ** torch.arange(self.horizon, device=self.device, dtype=torch.float32)[:, None]
+        next_values = self.target_critic(self._observations(window.obs[1:].flatten(0, 1))).view(self.horizon, -1)
+        last = alive & (ended | (torch.arange(self.horizon, device=self.device)[:, None] == self.horizon - 1))
+        rewards = torch.where(alive, window.rewards, 0.0)
+        tails = torch.where(last & ~terminated, next_values, 0.0)
+        objective = (discount * (rewards + s.gamma * tails)).sum(0).mean() / self.horizon
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (-objective).backward()
+        norm = torch.nn.utils.clip_grad_norm_(self.actor.parameters(), s.max_grad_norm)
+        if torch.isfinite(norm):
+            self.actor_optimizer.step()
+        return -objective.item(), next_values.detach()
+
+    def _critic_step(self, window: Trajectory, alive, ended, terminated, next_values) -> float:
+        s = self.settings
+        targets = window_targets(window.rewards.detach(), next_values, terminated, ended, s.gamma, s.lam)[alive]
+        obs = window.obs[:-1].detach()[alive]
+        batches = max(1, min(s.critic_mini_batches, len(obs)))
+        total, steps = 0.0, 0
+        for _ in range(s.critic_iterations):
+            for batch in torch.randperm(len(obs), device=self.device).tensor_split(batches):
+                loss = (self.critic(self._observations(obs[batch])).squeeze(-1) - targets[batch]).square().mean()
+                self.critic_optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                norm = torch.nn.utils.clip_grad_norm_(self.critic.parameters(), s.max_grad_norm)
+                if torch.isfinite(norm):
+                    self.critic_optimizer.step()
+                total, steps = total + loss.detach(), steps + 1
+        with torch.no_grad():
+            for target, value in zip(self.target_critic.parameters(), self.critic.parameters()):
+                target.lerp_(value, 1 - s.target_critic_alpha)
+            for target, value in zip(self.target_critic.buffers(), self.critic.buffers()):
+                target.copy_(value)  # the input normaliser's statistics (obs_normalization)
+        return (total / steps).item()
+
+    def _carry_on(self, window: Trajectory, alive, ended, terminated):
+        """Episode statistics of the window's ended episodes; states on to the next window, new starts where ended."""
+        done = ended.any(0)
+        self.episode_return += torch.where(alive, window.rewards.detach(), 0.0).sum(0)
+        self.episode_length += alive.sum(0)
+        self.time_out_count += alive.sum(0)
+        timed_out = done & ~(terminated & alive).any(0)
+        self.episodes.add(done, self.episode_return, self.episode_length, timed_out)
+        self.q, self.qd = window.q[-1].detach(), window.qd[-1].detach()
+        if done.any():
+            self._starts(done)
+        self.env.episode_length_buf = self.time_out_count  # the progress line's time into the running episodes
+
+    def _set_learning_rates(self):
+        """The settings' rates (a resumed optimizer keeps its saved ones otherwise), decayed where ``linear_decay``."""
+        left = max(0.0, 1.0 - self.progress.iterations / self._end_iteration) if self.settings.linear_decay else 1.0
+        for optimizer, rate in ((self.actor_optimizer, self.settings.actor_learning_rate),
+                                (self.critic_optimizer, self.settings.critic_learning_rate)):
+            for group in optimizer.param_groups:
+                group["lr"] = rate * left
+        self.alg.learning_rate = self.settings.actor_learning_rate * left
+
+    @property
+    def action_std(self) -> torch.Tensor:
+        return torch.full((self.env.num_actions,), self.settings.action_noise_std, device=self.device)
+
+    def _state_dict(self) -> dict:
+        return super()._state_dict() | {"apg_state_dict": {"actor_optimizer": self.actor_optimizer.state_dict(),
+                                                          "critic_optimizer": self.critic_optimizer.state_dict(),
+                                                          "target_critic": self.target_critic.state_dict()}}
+
+    def _load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+        super()._load_state_dict(loaded, load_cfg, strict)
+        state = loaded.get("apg_state_dict")
+        if load_cfg is None and state is not None:
+            self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+            self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+            self.target_critic.load_state_dict(state["target_critic"])
+        else:  # a checkpoint of another learner, or only some of its networks: the target is the critic loaded
+            self.target_critic.load_state_dict(self.critic.state_dict())
