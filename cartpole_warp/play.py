@@ -30,7 +30,7 @@ import tyro
 from . import tasks
 from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, expand_aliases, parse, peek, quiet_libraries
 from .engine.scene import StageError
-from .rl.config import TrainConfig, checked, train_config
+from .rl.config import TrainConfig, checked, train_config, with_env_preset
 from .rl.runs import (
     CONFIG_FILE,
     EXPORT_DIR,
@@ -102,7 +102,8 @@ class PlayArgs(Generic[TaskT]):
     experiment_name: str | None = None
     """The experiment whose newest run plays (train.py's --agent.experiment-name); None: the task's name."""
     config: str | None = None
-    """Preset of the env for --agent zero|random, or for a checkpoint outside a run folder."""
+    """Preset of the env for --agent zero|random or a checkpoint outside a run folder; with a run, its env settings
+    replace the run's (a policy played on other physics, e.g. a rig's)."""
     headless: bool = False
     """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda
     and result.json (the same as --viewer none)."""
@@ -134,16 +135,17 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     first = peek(argv, task=None, agent="trained", run=None, checkpoint=None, log_dir="logs", experiment_name=None,
                  config=None)
     task = tasks.get(first.task or tasks.DEFAULT_TASK).name
-    checkpoint = None
+    checkpoint, physics_preset = None, False
     if first.agent != "trained" or asks_help(argv):
         cfg = train_config(task, first.config)
     else:
         checkpoint = find_checkpoint(first.checkpoint, first.run, lambda: latest_run(
             first.log_dir, first.experiment_name or task, "--experiment-name"), play_checkpoint, "--run")
         saved = checkpoint.parent / CONFIG_FILE
-        require(not (saved.is_file() and first.config), f"--config conflicts with the run's saved {saved}; "
-                                                         "override its fields with flags instead")
         cfg = load_config(checkpoint.parent) if saved.is_file() else train_config(task, first.config)
+        physics_preset = saved.is_file() and first.config is not None
+        if physics_preset:
+            cfg = with_env_preset(cfg, first.config)
         require(not first.task or first.task == cfg.task, f"--task {first.task}: the run was trained on {cfg.task}")
     cfg.env.num_envs = cfg.eval.num_envs
     cls = PlayArgs[type(cfg.env.task)]
@@ -159,6 +161,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         args.headless = True
     require(args.viser.problem() is None, args.viser.problem())
     if args.eval:
+        require(not physics_preset, "--eval plays its own grid of physics around the stage's: drop --config")
         grid_envs(args, cfg, argv)
     return args, checked(cfg).validate(), checkpoint
 

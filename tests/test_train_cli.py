@@ -233,6 +233,25 @@ def test_play_headless_writes_a_gif_and_a_time_sampled_usd(trained, run_main):
     assert result_json["play_value"] == result_json[tasks.get(task).play_metric]
 
 
+def test_play_with_a_preset_plays_a_run_on_the_presets_physics(trained, tmp_path, run_main):
+    """``play.py --config`` on a trained run: the preset's env settings replace the run's (a cart three times as
+    heavy moves otherwise under the same policy from the same starts); one that sets training settings is refused."""
+    log_dir, run, _ = trained
+    heavy = tmp_path / "heavy.yaml"
+    heavy.write_text("env:\n  randomization:\n    at: reset\n    mass_scale: {cart: [3.0, 3.0]}\n")
+    played = {}
+    for name, flags in (("own", []), ("heavy", ["--config", heavy])):
+        result = run_main("play", "--headless", "--run", run, "--num-envs", "4", "--steps", "30", "--output",
+                          tmp_path / name, *flags)
+        assert result.returncode == 0, result.stdout + result.stderr
+        played[name] = np.load(tmp_path / name / "trajectory.npz")["cart_pos_m"]
+    assert np.abs(played["own"] - played["heavy"]).max() > 1e-3
+    trainer = tmp_path / "trainer.yaml"
+    trainer.write_text("agent:\n  max_iterations: 5\n")
+    result = run_main("play", "--headless", "--run", run, "--config", trainer)
+    assert result.returncode != 0 and "may set only env settings" in result.stderr, result.stderr
+
+
 def test_play_export_writes_onnx_and_torchscript(trained, tmp_path, run_main):
     log_dir, run, _ = trained
     copy = shutil.copytree(run, tmp_path / "run")
@@ -347,7 +366,7 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
         assert ("--agent.algorithm.entropy-coef" in full.stdout) == (script == "train"), script
     train_help = run_main("train", "--help").stdout
     flag_lines = len(train_help.splitlines()) - len(tasks.names())  # a line per task beside the flags
-    assert flag_lines <= 75, "train.py --help is for the common flags"
+    assert flag_lines <= 80, "train.py --help is for the common flags"
     presets = sorted(path.stem for path in (Path(__file__).parent.parent / "configs").glob("*.yaml"))
     assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
@@ -356,7 +375,7 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--num-envs", "0"], "error: invalid config: env.num_envs: Input should be greater than or equal to 1 (got 0)"),
     (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
     (["--config", "nonexistent"],
-     "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, robust, tutorial"),
+     "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, rig_swingup, robust, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),

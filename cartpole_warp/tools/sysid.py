@@ -59,6 +59,11 @@ JACOBIAN_STEP = 1e-3
 IDENTIFIED_WITHIN = 0.01
 """A parameter whose standard error is above this fraction of its fit (or of the stage's value, if larger) is
 reported as not identified by the recording: its effect on the recorded positions is small against their noise."""
+LIMIT_MARGIN = 0.02
+"""Rows whose position lies within this fraction of a joint's range (1 m or rad where one side has no limit) of one
+of its limits are in no window."""
+NO_LIMIT = 1e6
+"""A joint limit at or beyond this (m or rad) is none."""
 ZERO_START = 0.01
 """Guesses draw a parameter the stage leaves at 0 (damping, friction) within this many SI units of 0, times
 ``--spread``."""
@@ -94,17 +99,29 @@ class SysidArgs:
     """Seed of the starting guesses."""
 
 
-def windows(recording: Recording, steps: int) -> list[int]:
-    """The first rows of the shooting windows: ``steps`` + 1 rows each, inside one episode, back to back."""
+def windows(recording: Recording, steps: int, usable: np.ndarray) -> list[int]:
+    """The first rows of the shooting windows: ``steps`` + 1 rows each, inside one episode, back to back, every row
+    ``usable`` (bool per row)."""
     same = recording.episode
     starts, t = [], 0
     while t + steps < len(same):
-        if (same[t:t + steps + 1] == same[t]).all():
+        if (same[t:t + steps + 1] == same[t]).all() and usable[t:t + steps + 1].all():
             starts.append(t)
             t += steps
         else:
             t += 1
     return starts
+
+
+def clear_of_limits(recording: Recording, env) -> np.ndarray:
+    """(rows,) bool: every joint's recorded position further than ``LIMIT_MARGIN`` of its range from the stage's
+    limits (a joint without limits is always clear)."""
+    model, dofs = env.scene.model, env.scene.role_dofs
+    lower, upper = model.joint_limit_lower.numpy()[dofs], model.joint_limit_upper.numpy()[dofs]
+    has_lower, has_upper = np.abs(lower) < NO_LIMIT, np.abs(upper) < NO_LIMIT  # Newton's "none" is +-1e10
+    margin = LIMIT_MARGIN * np.where(has_lower & has_upper, upper - lower, 1.0)
+    clear = (~has_lower | (recording.q > lower + margin)) & (~has_upper | (recording.q < upper - margin))
+    return clear.all(axis=1)
 
 
 def velocities(recording: Recording, dt: float, sliders: list[bool]) -> np.ndarray:
@@ -142,8 +159,13 @@ def fit(args: SysidArgs) -> dict:
     steps_dt = np.diff(recording.time_s)
     require(np.allclose(steps_dt[np.diff(recording.episode) == 0], dt, rtol=1e-3, atol=1e-6),
             f"{args.trajectory}: rows must come every {dt:g} s (the task's control period)")
-    starts = windows(recording, args.window_steps)
-    require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode")
+    clear = clear_of_limits(recording, probe)
+    if not clear.all():
+        print(f"{int((~clear).sum())} rows lie within {LIMIT_MARGIN:.0%} of a joint's range of its limit (the stage's "
+              "stop, a stiff spring whose onset a window's start cannot be fitted through): no window holds them")
+    starts = windows(recording, args.window_steps, clear)
+    require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode and clear of "
+                    "the joints' limits")
     names = physics_names = [n for n in probe.physics.settable() if n != "action_delay_steps"]
     stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in physics_names}
     on_joint = [f"{role}_com_m" for role, body in zip(roles, probe.physics.bodies) if body.com_distance == 0.0]
@@ -315,7 +337,10 @@ def plot(path: Path, recording: Recording, starts: list[int], simulated: np.ndar
     figure, axes = plt.subplots(joints, 1, figsize=(10, 2.2 * joints), sharex=True, squeeze=False)
     for j in range(joints):
         ax = axes[j, 0]
-        ax.plot(recording.time_s, recording.q[:, j], color="0.4", lw=1, label="recorded")
+        for number, episode in enumerate(np.unique(recording.episode)):  # no line across a reset
+            rows = recording.episode == episode
+            ax.plot(recording.time_s[rows], recording.q[rows, j], color="0.4", lw=1,
+                    label="recorded" if number == 0 else None)
         for w, first in enumerate(starts):
             times = recording.time_s[first] + dt * np.arange(simulated.shape[0])
             ax.plot(times, simulated[:, w, j], ".", ms=2, color="tab:red", label="simulated" if w == 0 else None)
