@@ -126,3 +126,14 @@ def test_the_recording_format_reads_back_and_names_what_is_missing(tmp_path):
     (tmp_path / "ragged.csv").write_text("time_s,action,cart_pos_m,pole_angle_rad\n0,0,0,zero\n")
     with pytest.raises(ConfigError, match="not a readable trajectory"):
         read_trajectory(tmp_path / "ragged.csv", env.joint_roles, env.physics.sliders, 1)
+    header = "time_s,action,cart_pos_m,pole_angle_rad\n"
+    for name, body, message in (("nan", "0,0,0,0\n0.1,0,nan,0\n", "positions and actions must be finite"),
+                                ("backwards", "0.1,0,0,0\n0.0,0,0,0\n", "time_s must be finite and increase"),
+                                ("loud", "0,0,0,0\n0.1,400,0,0\n", r"actions must lie in \[-1, 1\].*largest is 400"),
+                                ("empty", "", "expected a header row and data rows")):
+        (tmp_path / f"{name}.csv").write_text(header + body)
+        with pytest.raises(ConfigError, match=message):
+            read_trajectory(tmp_path / f"{name}.csv", env.joint_roles, env.physics.sliders, 1)
+    short = write_trajectory(tmp_path / "short.npz", recording, env.joint_roles, env.physics.sliders)
+    with pytest.raises(ConfigError, match="no stretch of 21 rows inside one episode"):
+        sysid.fit(sysid.SysidArgs(trajectory=short, task="cartpole-balance", window_steps=20, output=tmp_path / "f"))

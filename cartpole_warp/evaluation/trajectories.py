@@ -89,9 +89,13 @@ def read_trajectory(path: Path, roles: tuple[str, ...], sliders: list[bool], num
         episode=columns.get("episode", np.zeros(length)))
     require(np.isfinite(recording.q).all() and np.isfinite(recording.action).all(),
             f"{path}: positions and actions must be finite")
+    largest = float(np.abs(recording.action).max(initial=0.0))
+    require(largest <= 1.0 + 1e-6, f"{path}: actions must lie in [-1, 1] (the task's action, before its force "
+                                   f"scale); the largest is {largest:g}")
+    same_episode = np.diff(recording.episode) == 0
+    require(np.isfinite(recording.time_s).all() and (np.diff(recording.time_s)[same_episode] > 0).all(),
+            f"{path}: time_s must be finite and increase from row to row within an episode")
     return recording
-
-
 
 
 class TrajectoryRecorder:
