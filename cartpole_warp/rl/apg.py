@@ -132,10 +132,12 @@ class ApgRunner(TaskRunner):
         alive = (torch.cumsum(ended, 0) - ended.long()) == 0  # the steps that count: up to the episode's end
         self._clock.mark(1)
         actor_loss, next_values = self._actor_step(window, alive, ended, terminated)
-        seen = self._observations(window.obs[:-1].detach()[alive])
+        states = window.obs[:-1].detach()
+        sound = alive & torch.isfinite(states).all(-1)  # not a diverged env's states
+        seen = self._observations(states[sound])
         self.actor.update_normalization(seen)  # where the networks normalise their inputs (obs_normalization)
         self.critic.update_normalization(seen)
-        critic_loss = self._critic_step(window, alive, ended, terminated, next_values)
+        critic_loss = self._critic_step(window, sound, ended, terminated, next_values)
         self._clock.mark(2)
         self._carry_on(window, alive, ended, terminated)
         return obs, {"actor": actor_loss, "value_function": critic_loss}
@@ -162,10 +164,13 @@ class ApgRunner(TaskRunner):
             self.actor_optimizer.step()
         return -objective.item(), next_values.detach()
 
-    def _critic_step(self, window: Trajectory, alive, ended, terminated, next_values) -> float:
+    def _critic_step(self, window: Trajectory, sound, ended, terminated, next_values) -> float:
+        """The critic fitted to the TD(lambda) targets of the ``sound`` steps (counted and finite), then the target
+        critic moved towards it."""
         s = self.settings
-        targets = window_targets(window.rewards.detach(), next_values, terminated, ended, s.gamma, s.lam)[alive]
-        obs = window.obs[:-1].detach()[alive]
+        targets = window_targets(window.rewards.detach(), next_values, terminated, ended, s.gamma, s.lam)
+        sound = sound & torch.isfinite(targets)
+        targets, obs = targets[sound], window.obs[:-1].detach()[sound]
         batches = max(1, min(s.critic_mini_batches, len(obs)))
         total, steps = 0.0, 0
         for _ in range(s.critic_iterations):
@@ -173,9 +178,8 @@ class ApgRunner(TaskRunner):
                 loss = (self.critic(self._observations(obs[batch])).squeeze(-1) - targets[batch]).square().mean()
                 self.critic_optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                norm = torch.nn.utils.clip_grad_norm_(self.critic.parameters(), s.max_grad_norm)
-                if torch.isfinite(norm):
-                    self.critic_optimizer.step()
+                torch.nn.utils.clip_grad_norm_(self.critic.parameters(), s.max_grad_norm)
+                self.critic_optimizer.step()
                 total, steps = total + loss.detach(), steps + 1
         with torch.no_grad():
             for target, value in zip(self.target_critic.parameters(), self.critic.parameters()):
