@@ -19,6 +19,9 @@ TASKS = "known tasks: cartpole-balance, "
     ("tools.encoder", ["--task", "nope"], f"error: unknown task 'nope'; {TASKS}"),
     ("tools.encoder", ["--task", "cartpole-balance-rgb", "--device", "cpu"], "error: encoder timing needs a task seen"),
     ("tools.encoder", ["--task", "cartpole-balance", "--device", "cpu"], "error: encoder timing needs a task seen"),
+    ("tools.gradcheck", ["--horizon", "0"], "error: --horizon must be >= 1, got 0"),
+    ("tools.gradcheck", ["--task", "nope"], f"error: unknown task 'nope'; {TASKS}"),
+    ("tools.gradcheck", ["--task", "cartpole-balance-rgb"], "error: a differentiable rollout runs state tasks"),
     ("viz.web", ["README.md", "99999"], "usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]"),
     ("viz.web", ["README.md", "abc"], "usage: python -m cartpole_warp.viz.web RECORDING.viser [PORT]"),
 ])

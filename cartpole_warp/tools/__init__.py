@@ -1,1 +1,1 @@
-"""Programs that measure (bench, sweep, timing); never imported by the library."""
+"""Programs that measure (bench, sweep, timing, encoder, sysid, gradcheck); never imported by the library."""
