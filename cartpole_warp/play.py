@@ -3,7 +3,7 @@
     python play.py --headless                    # newest cartpole-balance run's best checkpoint -> <run>/play/
     python play.py --headless --task cartpole-swingup     # newest run of that task
     python play.py --headless --run DIR          # or --checkpoint FILE
-    python play.py --agent zero --headless       # no checkpoint needed (also: random)
+    python play.py --agent zero --headless       # no checkpoint needed (also: random, multisine)
     python play.py --headless --eval             # success rate over a grid of pole mass x actuator strength
     python play.py                               # Newton's interactive viewer (needs a display and the viz extra)
     python play.py --viewer viser                # in a browser: http://127.0.0.1:8080 (needs the viser extra)
@@ -47,7 +47,7 @@ from .settings.files import unwritable, write_text
 if TYPE_CHECKING:
     from .evaluation.rollouts import Policy  # torch: imported when a run needs it
 
-Agent = Literal["trained", "zero", "random"]
+Agent = Literal["trained", "zero", "random", "multisine"]
 Viewer = Literal["window", "viser", "none"]
 
 
@@ -89,9 +89,10 @@ class PlayArgs(Generic[TaskT]):
     env: EnvConfig[TaskT]
     task: str = tasks.DEFAULT_TASK
     """The task whose newest run plays (a run's own task when --run or --checkpoint names it), or which --agent
-    zero|random plays."""
+    zero|random|multisine plays."""
     agent: Agent = "trained"
-    """trained: a checkpoint's policy; zero: no push; random: uniform in [-1, 1]."""
+    """trained: a checkpoint's policy; zero: no push; random: uniform in [-1, 1]; multisine: cosines of 0.75, 1.4 and
+    2.7 Hz, the same in every env (an excitation for tools.sysid's recordings of the swing-up)."""
     run: Path | None = None
     """Run folder (default: the newest run under --log-dir)."""
     checkpoint: Path | None = None
@@ -102,8 +103,8 @@ class PlayArgs(Generic[TaskT]):
     experiment_name: str | None = None
     """The experiment whose newest run plays (train.py's --agent.experiment-name); None: the task's name."""
     config: str | None = None
-    """Preset of the env for --agent zero|random or a checkpoint outside a run folder; with a run, its env settings
-    replace the run's (a policy played on other physics, e.g. a rig's)."""
+    """Preset of the env for --agent zero|random|multisine or a checkpoint outside a run folder; with a run, its env
+    settings replace the run's (a policy played on other physics, e.g. a rig's)."""
     headless: bool = False
     """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda
     and result.json (the same as --viewer none)."""
@@ -228,13 +229,14 @@ def play(argv: list[str]) -> int:
 
 
 def load_policy(args: PlayArgs, cfg: TrainConfig, env, checkpoint: Path | None) -> Policy:
-    """The checkpoint's deterministic policy (exported first with --export), or the zero or random one."""
-    from .evaluation.rollouts import random_policy, zero_policy
+    """The checkpoint's deterministic policy (exported first with --export), or the zero, random or multisine one."""
+    from .evaluation.rollouts import MultisinePolicy, RandomPolicy, zero_policy
 
     if checkpoint is None:
         print(f"policy: {args.agent}")
-        return (functools.partial(zero_policy, num_actions=env.num_actions) if args.agent == "zero"
-                else random_policy(env.num_actions, cfg.env.seed))
+        return {"zero": lambda: functools.partial(zero_policy, num_actions=env.num_actions),
+                "random": lambda: RandomPolicy(env.num_actions, cfg.env.seed),
+                "multisine": lambda: MultisinePolicy(env.num_actions, env.env_dt)}[args.agent]()
     from .rl.policies import deterministic, export_policy, load_actor
     from .wrappers.rsl_rl import RslRlVecEnv
 

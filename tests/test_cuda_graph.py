@@ -66,3 +66,23 @@ def test_graphed_training_solves(cuda):
     trained.eval_env = cartpole_warp.make_env(num_envs=trained.train_cfg.eval.num_envs, device=cuda, seed=0)
     trained.learn(150)
     assert trained.stop_reason == "solved", trained.progress.history[-1]
+
+
+def test_a_host_policy_runs_launched_and_a_device_one_captured(cuda):
+    """``FirstEpisodesRun`` captures a policy of device work and replays it; a policy that draws on the host (play.py's
+    random and multisine agents) runs op by op, so that every step gets its own actions (a graph would replay one)."""
+    from cartpole_warp.evaluation.rollouts import FirstEpisodesRun, RandomPolicy, zero_policy
+
+    drawn = []
+
+    class Recorded(RandomPolicy):
+        def __call__(self, obs):
+            drawn.append(float(super().__call__(obs)[0, 0]))
+            return torch.full((obs.shape[0], 1), drawn[-1], device=obs.device)
+
+    env = cartpole_warp.tasks.make("cartpole-swingup", num_envs=4, device=cuda, seed=0)
+    assert FirstEpisodesRun(env, zero_policy)._graph is not None
+    run = FirstEpisodesRun(env, Recorded(1, seed=0))
+    assert run._graph is None
+    run(5)
+    assert len(drawn) == 5 and len(set(drawn)) == 5

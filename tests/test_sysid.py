@@ -137,3 +137,21 @@ def test_the_recording_format_reads_back_and_names_what_is_missing(tmp_path):
     short = write_trajectory(tmp_path / "short.npz", recording, env.joint_roles, env.physics.sliders)
     with pytest.raises(ConfigError, match="no stretch of 21 rows inside one episode"):
         sysid.fit(sysid.SysidArgs(trajectory=short, task="cartpole-balance", window_steps=20, output=tmp_path / "f"))
+
+
+def test_plays_multisine_and_random_agents_record_what_they_played(tmp_path, run_main):
+    """``play.py --agent multisine`` records the cosines of its docstring (the action applied from each row's time), a
+    recording the swing-up's cart makes clear of the rail's stops; ``--agent random`` records uniform actions in
+    [-1, 1] that differ step to step."""
+    for agent in ("multisine", "random"):
+        result = run_main("play", "--headless", "--task", "cartpole-swingup", "--agent", agent, "--num-envs", "2",
+                          "--output", tmp_path / agent)
+        assert result.returncode == 0, result.stdout + result.stderr
+    played = np.load(tmp_path / "multisine" / "trajectory.npz")
+    t, actions = played["time_s"][:-1], played["action"][:-1]  # the last row: no action after it
+    cosines = (0.5 * np.cos(2 * np.pi * 0.75 * t) + 0.3 * np.cos(2 * np.pi * 1.4 * t)
+               + 0.2 * np.cos(2 * np.pi * 2.7 * t))
+    assert len(t) == 500 and np.abs(actions - cosines).max() < 1e-6
+    assert np.abs(played["cart_pos_m"]).max() < 1.5, "the cart stays off the stops at +-1.8 m"
+    random_actions = np.load(tmp_path / "random" / "trajectory.npz")["action"][:-1]
+    assert np.abs(random_actions).max() <= 1.0 and random_actions.std() > 0.4 and len(np.unique(random_actions)) > 400

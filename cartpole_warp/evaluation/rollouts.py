@@ -1,11 +1,12 @@
-"""Running a policy on a batched env (trained, zero or random policies) and the deterministic evaluation that decides
-'solved'.
+"""Running a policy on a batched env (trained, zero, random or multisine policies) and the deterministic evaluation
+that decides 'solved'.
 
 A policy is any ``policy(obs) -> actions`` callable on torch tensors, obs (N, num_obs) -> actions (N, num_actions).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,14 +28,43 @@ def zero_policy(obs: torch.Tensor, num_actions: int = 1) -> torch.Tensor:
     return torch.zeros(obs.shape[0], num_actions, dtype=torch.float32, device=obs.device)
 
 
-def random_policy(num_actions: int, seed: int = 0) -> Policy:
+class HostPolicy:
+    """A policy whose actions come from the host, step after step (a seeded generator, a clock): a CUDA graph would
+    replay one step's actions, so ``FirstEpisodesRun`` launches it op by op (``capturable``)."""
+
+    capturable = False
+
+
+class RandomPolicy(HostPolicy):
     """Uniform random actions in [-1, 1] from a seeded generator."""
-    generator = torch.Generator().manual_seed(seed)
 
-    def policy(obs: torch.Tensor) -> torch.Tensor:
-        return (torch.rand(obs.shape[0], num_actions, generator=generator) * 2 - 1).to(obs.device)
+    def __init__(self, num_actions: int, seed: int = 0):
+        self.num_actions = num_actions
+        self.generator = torch.Generator().manual_seed(seed)
 
-    return policy
+    def __call__(self, obs: torch.Tensor) -> torch.Tensor:
+        return (torch.rand(obs.shape[0], self.num_actions, generator=self.generator) * 2 - 1).to(obs.device)
+
+
+EXCITATION = ((0.75, 0.5), (1.4, 0.3), (2.7, 0.2))
+"""(frequency Hz, amplitude) of ``MultisinePolicy``'s cosines: the first near the swing-up's hanging pole's own
+frequency, amplitudes summing to the full push."""
+
+
+class MultisinePolicy(HostPolicy):
+    """The same action in every env, a sum of cosines of the time since the first call (``components``: (frequency
+    Hz, amplitude) pairs): an excitation for a recording that ``tools.sysid`` fits. Cosines start at their peak, so
+    the cart's mean velocity stays 0 and it swings about a point near its start instead of drifting to a stop."""
+
+    def __init__(self, num_actions: int, env_dt_s: float, components: tuple = EXCITATION):
+        self.num_actions, self.env_dt_s, self.components = num_actions, env_dt_s, components
+        self.steps = 0
+
+    def __call__(self, obs: torch.Tensor) -> torch.Tensor:
+        t_s = self.steps * self.env_dt_s
+        self.steps += 1
+        action = sum(amplitude * math.cos(2 * math.pi * hz * t_s) for hz, amplitude in self.components)
+        return torch.full((obs.shape[0], self.num_actions), action, dtype=torch.float32, device=obs.device)
 
 
 @dataclass
@@ -69,7 +99,8 @@ class FirstEpisodesRun:
         self._lengths = torch.zeros(n, dtype=torch.int64, device=device)
         self._returns = torch.zeros(n, dtype=torch.float32, device=device)
         self._steps = torch.zeros((), dtype=torch.int64, device=device)
-        self._graph = TorchGraph(device) if capture and torch.device(device).type == "cuda" else None
+        capture = capture and getattr(policy, "capturable", True) and torch.device(device).type == "cuda"
+        self._graph = TorchGraph(device) if capture else None
         if self._graph is not None:
             self._advance()  # op by op (allocations, cuBLAS on the graph's stream)
             self._advance()  # captured
