@@ -39,7 +39,7 @@ from .cli import (
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
-from .rl.config import TrainConfig, apg_settings, checked, gpu_settings, train_config
+from .rl.config import TrainConfig, apg_settings, checked, device_settings, on_gpu, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
@@ -202,9 +202,10 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
     print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
     print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
           flush=True)
-    if checkpoint is None and (chosen := gpu_settings(training.cfg)):  # a resumed run keeps its saved settings
-        print(f"on a GPU the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
-              "(its CPU settings differ; a flag changes either)", flush=True)
+    if checkpoint is None and (chosen := device_settings(training.cfg)):  # a resumed run keeps its saved settings
+        here, other = ("GPU", "CPU") if on_gpu(training.cfg.env.device) else ("CPU", "GPU")
+        print(f"on a {here} the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
+              f"(its {other} settings differ; a flag changes either)", flush=True)
     if checkpoint is None and (chosen := apg_settings(training.cfg)):
         print(f"with --algorithm apg the task's settings: {', '.join(f'{n} {v}' for n, v in chosen.items())} "
               "(a flag changes any)", flush=True)

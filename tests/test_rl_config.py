@@ -11,7 +11,7 @@ import pytest
 from rsl_rl.utils import resolve_callable
 
 from cartpole_warp import tasks
-from cartpole_warp.rl.config import RunnerConfig, gpu_settings, train_config
+from cartpole_warp.rl.config import RunnerConfig, device_settings, gpu_settings, train_config
 from cartpole_warp.rl.policies import to_rsl_rl
 from cartpole_warp.settings.config import ConfigError
 from cartpole_warp.settings.presets import load_preset, presets
@@ -137,6 +137,19 @@ def test_on_a_gpu_the_swingup_changes_only_the_mini_batches_and_the_evaluations_
     assert changed == default, "every other setting is the swing-up's"
     assert train_config("cartpole-swingup", device="cpu") == default
     assert gpu_settings(default) == {}
+
+
+def test_on_a_cpu_the_balance_takes_narrow_networks_and_a_gpu_or_a_flag_keeps_the_wide_ones(tmp_path):
+    cpu, gpu = train_config("cartpole-balance"), train_config("cartpole-balance", device="cuda:0")
+    assert (cpu.agent.actor.hidden_dims, cpu.agent.critic.hidden_dims) == ([8, 8], [8, 8])
+    assert (gpu.agent.actor.hidden_dims, gpu.agent.critic.hidden_dims) == ([32, 32], [32, 32])
+    assert device_settings(cpu) == {"agent.actor.hidden_dims": [8, 8], "agent.critic.hidden_dims": [8, 8]}
+    assert device_settings(gpu) == gpu_settings(gpu) == gpu_settings(cpu) == {}
+    assert train_config("cartpole-balance", "isaac_lab").agent.actor.hidden_dims == [32, 32], "Isaac Lab's own"
+    for variant in ("cartpole-balance-sparse", "cartpole-balance-rgb"):  # not measured with them
+        assert device_settings(train_config(variant)) == {}, variant
+    cfg, _, _ = resolve(["--log-dir", str(tmp_path), "--agent.actor.hidden-dims", "32", "32"])
+    assert device_settings(cfg) == {"agent.actor.hidden_dims": [32, 32], "agent.critic.hidden_dims": [8, 8]}
 
 
 def test_train_takes_the_gpu_settings_from_the_device_flag_and_a_flag_still_changes_them(tmp_path):

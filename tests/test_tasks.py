@@ -41,13 +41,13 @@ def test_the_registry_finds_every_task_and_names_the_known_ones():
     assert swingup.max_episode_length == 500 and balance.max_episode_length == double.max_episode_length == 600
 
 
-def test_the_docs_task_table_lists_every_task_its_gymnasium_ids_its_budget_and_its_gpu_settings(repo):
+def test_the_docs_task_table_lists_every_task_its_gymnasium_ids_its_budget_and_its_device_settings(repo):
     """docs/tasks.md: a row per task of the package, with its gymnasium ids, its default budget of iterations and
-    whether it takes settings of its own on a GPU."""
+    whether it takes settings of its own on a GPU and on a CPU."""
     rows = {}
     for line in (repo / "docs" / "tasks.md").read_text().splitlines():
         cells = [cell.strip() for cell in line.strip("|").split("|")]
-        if line.startswith("| `") and len(cells) == 4:
+        if line.startswith("| `") and len(cells) == 5:
             rows[cells[0].strip("`")] = cells
     shipped = [name for name in tasks.names() if tasks.get(name).env_class.__module__.startswith("cartpole_warp.")]
     assert sorted(rows) == sorted(shipped)
@@ -56,6 +56,7 @@ def test_the_docs_task_table_lists_every_task_its_gymnasium_ids_its_budget_and_i
         assert ids == set(tasks.get(name).gym_ids), name
         assert rows[name][2] == str(train_config(name).agent.max_iterations), name
         assert (rows[name][3] != "-") == bool(tasks.get(name).gpu_defaults), name
+        assert (rows[name][4] != "-") == bool(tasks.get(name).cpu_defaults), name
 
 
 def test_a_preset_for_another_task_is_refused_alike_by_every_entry_point(tmp_path, run_main):

@@ -73,8 +73,8 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
                  learner: str | None = None) -> TrainConfig:
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
     refuses a preset for another task; on ``device`` where given), then the dataclass defaults, the task's (with its
-    ``gpu_defaults`` where the env's device is CUDA, then its ``apg_defaults`` where ``learner`` (the flag) or the
-    preset says 'apg') and the preset's agent and run settings (flags may still change it: ``validate`` after
+    ``gpu_defaults`` or ``cpu_defaults`` by the env's device, then its ``apg_defaults`` where ``learner`` (the flag)
+    or the preset says 'apg') and the preset's agent and run settings (flags may still change it: ``validate`` after
     them)."""
     preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
     env = tasks.env_config(task, preset, preset_data=preset_data, device=device)
@@ -82,8 +82,7 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     base = cls(env=env, task=task)
     rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
     data = merge(dataclasses.asdict(base), rest)
-    if on_gpu(env.device):
-        data = merge(data, base.task_spec.gpu_defaults)
+    data = merge(data, device_defaults(base.task_spec, env.device))
     if (learner or preset_data.get("agent", {}).get("learner")) == "apg":
         data = merge(merge(data, base.task_spec.apg_defaults), {"agent": {"learner": "apg"}})
     if preset is not None:
@@ -97,10 +96,20 @@ def on_gpu(device: str) -> bool:
     return device.startswith("cuda")
 
 
+def device_defaults(task: tasks.Task, device: str) -> dict:
+    """The task's overrides for ``device``: ``Task.gpu_defaults`` on a GPU, ``Task.cpu_defaults`` on a CPU."""
+    return task.gpu_defaults if on_gpu(device) else task.cpu_defaults
+
+
+def device_settings(cfg: TrainConfig) -> dict[str, object]:
+    """The settings the task chooses for ``cfg``'s device (``device_defaults``), by dotted name, with the values
+    ``cfg`` has (a flag may have changed them); {} where the task chooses none."""
+    return chosen_settings(cfg, device_defaults(cfg.task_spec, cfg.env.device))
+
+
 def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
-    """The settings the task chooses for a GPU (``Task.gpu_defaults``), by dotted name, with the values ``cfg`` has
-    (a flag may have changed them); {} where ``cfg`` runs on a CPU or the task chooses none."""
-    return chosen_settings(cfg, cfg.task_spec.gpu_defaults) if on_gpu(cfg.env.device) else {}
+    """``device_settings`` where ``cfg`` runs on a GPU; {} on a CPU."""
+    return device_settings(cfg) if on_gpu(cfg.env.device) else {}
 
 
 def apg_settings(cfg: TrainConfig) -> dict[str, object]:
@@ -149,5 +158,5 @@ def load_train_config(data: dict, where: str) -> TrainConfig:
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",
-           "TrainConfig", "apg_settings", "checked", "gpu_settings", "load_train_config", "train_config",
-           "with_env_preset"]
+           "TrainConfig", "apg_settings", "checked", "device_settings", "gpu_settings", "load_train_config",
+           "train_config", "with_env_preset"]

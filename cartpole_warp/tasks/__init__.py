@@ -57,6 +57,10 @@ class Task:
     evaluation as much as a large one; on a CPU both cost their samples). train.py names them in its first lines. A
     variant made with ``dataclasses.replace`` inherits them: give it its own (``{}``: none) unless measured with
     them."""
+    cpu_defaults: dict = field(default_factory=dict)
+    """Overrides of ``defaults`` (``agent`` and run sections, no ``env``) where the run's device is a CPU, as
+    ``gpu_defaults`` where it is a GPU (there a network's width costs little; on a CPU every product and activation
+    costs its samples). train.py names them in its first lines; a variant inherits them as ``gpu_defaults``."""
     apg_defaults: dict = field(default_factory=lambda: APG_DEFAULTS)
     """Overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run trains with ``--algorithm apg``
     (analytic policy gradients: few envs, longer windows); train.py names them in its first lines."""
@@ -76,8 +80,9 @@ def register(task: Task) -> Task:
         raise ValueError(f"task {task.name!r} is already registered")
     raise_config_errors(f"task {task.name!r}: defaults",
                         overrides_errors(task.defaults, EnvConfig[task.env_class.config_class]))
-    raise_config_errors(f"task {task.name!r}: gpu_defaults", overrides_errors(task.gpu_defaults)
-                        + ["env settings do not depend on the device"] * ("env" in task.gpu_defaults))
+    for name, defaults in (("gpu_defaults", task.gpu_defaults), ("cpu_defaults", task.cpu_defaults)):
+        raise_config_errors(f"task {task.name!r}: {name}", overrides_errors(defaults)
+                            + ["env settings do not depend on the device"] * ("env" in defaults))
     raise_config_errors(f"task {task.name!r}: apg_defaults",
                         overrides_errors(task.apg_defaults, EnvConfig[task.env_class.config_class]))
     _TASKS[task.name] = task

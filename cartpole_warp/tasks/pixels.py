@@ -36,7 +36,7 @@ def from_pixels(task, name: str, image: str, camera: dict, gym_id: str, summary:
     defaults = merge(merge(merge(task.defaults, PIXEL_AGENT), agent or {}),
                      {"env": {"camera": {"image": image, **camera}}})
     return register(dataclasses.replace(task, name=name, defaults=defaults, summary=summary, gym_ids={gym_id: None},
-                                        gpu_defaults={}))  # the twin's are about its MLP's update
+                                        gpu_defaults={}, cpu_defaults={}))  # the twin's are about its MLP
 
 
 from_pixels(balance.TASK, "cartpole-balance-rgb", "rgb", BALANCE_CAMERA, "cartpole_warp/CartpoleBalanceRGB-v0",
