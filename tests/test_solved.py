@@ -115,6 +115,32 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
         evaluated["episodes"], evaluated["mean_return"], evaluated["time_limit_fraction"]), "the same episodes"
 
 
+def test_an_evaluation_stops_once_its_failures_rule_solved_out_and_keeps_the_whole_runs_verdict():
+    """With the task's rule, an evaluation whose failed episodes already keep the rule from being met stops there
+    (a fallen pole's episode cannot come back); one that may still be solved runs every episode to its end and gives
+    what the whole run gives."""
+    env = tasks.make("cartpole-balance", num_envs=32, device=DEVICE, seed=5)
+    rule = tasks.get("cartpole-balance").solved
+    gains = torch.tensor(BALANCING_GAINS, device=DEVICE)
+    for name, policy in (("no push", lambda obs: torch.zeros(obs.shape[0], 1, device=obs.device)),
+                         ("balancing", lambda obs: (obs @ gains)[:, None])):
+        whole, cut = (evaluate(FirstEpisodesRun(env, policy), 3, with_rule) for with_rule in (None, rule))
+        assert whole.cut_at_step is None and rule(whole) == rule(cut) == (name == "balancing"), name
+        if name == "balancing":
+            assert cut == whole, "a run that may still be solved is not cut"
+        else:
+            assert cut.cut_at_step < env.max_episode_length and cut.cut_at_step % 25 == 0
+            assert 2 <= cut.episodes < whole.episodes == 32 and cut.time_limit_fraction == 0.0, \
+                "the cut counts the episodes that had ended: failures, at least 2 of 32 (95% must reach the limit)"
+
+
+def test_a_rule_is_hopeless_once_too_many_episodes_failed_for_its_time_limit_fraction():
+    rule = tasks.get("cartpole-balance").solved
+    assert rule.min_time_limit_fraction == 0.95
+    assert not rule.hopeless(12, 256) and rule.hopeless(13, 256)  # 244 / 256 = 0.953, 243 / 256 = 0.949
+    assert not dataclasses.replace(rule, min_time_limit_fraction=0.0).hopeless(256, 256), "no fraction: never"
+
+
 @pytest.mark.parametrize("name", tasks.names())
 def test_every_tasks_rule_refuses_a_summary_without_episodes(name):
     assert not tasks.get(name).solved(EpisodeSummary(0, None, None, None, None))

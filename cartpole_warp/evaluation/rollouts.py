@@ -6,6 +6,7 @@ A policy is any ``policy(obs) -> actions`` callable on torch tensors, obs (N, nu
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -15,10 +16,13 @@ import torch
 from ..engine.env import BatchedEnv
 from ..engine.streams import TorchGraph
 from ..settings.deprecation import renamed
-from .statistics import EpisodeStats, EpisodeSummary
+from .statistics import EpisodeStats, EpisodeSummary, SolvedRule
 
 STEPS_WITHOUT_TIME_LIMIT = 1000
 """Env steps an evaluation or play runs where the task has no time limit."""
+HOPELESS_CHECK_STEPS = 25
+"""How often (env steps) a run asks whether it can stop (``FirstEpisodesRun``'s ``hopeless``): each ask reads a
+count back from the device."""
 Policy = Callable[[torch.Tensor], torch.Tensor]
 """``policy(obs (N, num_obs)) -> actions (N, num_actions)``, torch tensors on one device."""
 
@@ -76,12 +80,18 @@ class FirstEpisodes:
     """Env steps (the run's step cap for an episode still running at its end)."""
     reached_limit: torch.Tensor
     """bool: the episode reached the time limit (or the step cap) instead of failing."""
+    cut_at_step: int | None = None
+    """The env step a run stopped at before its step count (``FirstEpisodesRun``'s ``hopeless``), None: it ran
+    them all."""
+    ended: torch.Tensor | None = None
+    """bool: where a run was cut, the episodes that had ended (the others are not counted)."""
 
     def summary(self, max_episode_length: int) -> EpisodeSummary:
-        """Means over the episodes (full: those of ``max_episode_length`` steps)."""
+        """Means over the episodes (full: those of ``max_episode_length`` steps; of a cut run, those that ended)."""
         stats = EpisodeStats(self.returns.device, max_episode_length)
-        stats.add(torch.ones_like(self.reached_limit), self.returns, self.lengths, self.reached_limit)
-        return stats.summary()
+        counted = torch.ones_like(self.reached_limit) if self.ended is None else self.ended
+        stats.add(counted, self.returns, self.lengths, self.reached_limit)
+        return dataclasses.replace(stats.summary(), cut_at_step=self.cut_at_step)
 
 
 class FirstEpisodesRun:
@@ -123,11 +133,13 @@ class FirstEpisodesRun:
                 self._graph(self._step)
 
     def __call__(self, steps: int, on_step: Callable[[int], None] | None = None, reset: bool = True,
-                 seed: int | None = None) -> FirstEpisodes:
+                 seed: int | None = None, hopeless: Callable[[int], bool] | None = None) -> FirstEpisodes:
         """Reset the env (re-seeded with ``seed`` where given: the same starts each time; unless ``reset`` is False:
         the episodes it has just begun) and run the policy for ``steps`` env steps without gradients; ``on_step(k)``
         is called after the reset (k = 0) and after each step k (to record pictures). An episode still running after
-        ``steps`` counts as having reached the time limit."""
+        ``steps`` counts as having reached the time limit. ``hopeless(failed)``, asked every ``HOPELESS_CHECK_STEPS``
+        steps with the count of episodes that ended before the time limit, stops the run where it says True (the
+        result then counts the episodes that had ended)."""
         self._obs.copy_(self.env.reset(seed)[0] if reset else self.env.get_observations())
         self._finished.zero_()
         self._reached.fill_(True)
@@ -140,6 +152,10 @@ class FirstEpisodesRun:
             self._advance()
             if on_step is not None:
                 on_step(step)
+            if (hopeless is not None and step % HOPELESS_CHECK_STEPS == 0 and step < steps
+                    and hopeless(int((self._finished & ~self._reached).sum()))):
+                return FirstEpisodes(self._returns.clone(), self._lengths.clone(), self._reached.clone(), step,
+                                     self._finished.clone())
         return FirstEpisodes(self._returns.clone(), self._lengths.clone(), self._reached.clone())
 
 
@@ -162,11 +178,14 @@ def whole_episode_steps(env: BatchedEnv) -> int:
     return env.max_episode_length if env.cfg.task.has_time_limit else STEPS_WITHOUT_TIME_LIMIT
 
 
-def evaluate(run: FirstEpisodesRun, seed: int) -> EpisodeSummary:
+def evaluate(run: FirstEpisodesRun, seed: int, rule: SolvedRule | None = None) -> EpisodeSummary:
     """Each env's first episode from a reset seeded with ``seed`` to its end (``whole_episode_steps``): what
-    ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved')."""
-    steps = whole_episode_steps(run.env)
-    return run(steps, seed=seed).summary(min(steps, run.env.max_episode_length))
+    ``play.py --headless`` plays with that env count and seed (the evaluation that decides 'solved'). With the task's
+    ``rule``, cut where enough episodes have failed that the rule cannot be met (``SolvedRule.hopeless``;
+    ``EpisodeSummary.cut_at_step``): a verdict of 'solved' still takes every episode to its end."""
+    steps, n = whole_episode_steps(run.env), run.env.num_envs
+    hopeless = None if rule is None else (lambda failed: rule.hopeless(failed, n))
+    return run(steps, seed=seed, hopeless=hopeless).summary(min(steps, run.env.max_episode_length))
 
 
 __getattr__ = renamed(__name__, {"NO_LIMIT_STEPS": "STEPS_WITHOUT_TIME_LIMIT"})

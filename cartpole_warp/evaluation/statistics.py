@@ -29,6 +29,9 @@ class EpisodeSummary:
     """Episodes that ran the whole time limit (the first episodes of a run with random episode starts are shorter)."""
     full_reward_per_step: float | None = None
     """Mean reward per step of the full episodes."""
+    cut_at_step: int | None = None
+    """Where an evaluation stopped at this env step, once its failed episodes kept the task's rule from being met
+    (``SolvedRule.hopeless``): the means are over the episodes that had ended (None: a whole run)."""
 
 
 class EpisodeStats:
@@ -104,6 +107,11 @@ class SolvedRule:
             return False
         return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
                 and summary.time_limit_fraction >= self.min_time_limit_fraction)
+
+    def hopeless(self, failed: int, episodes: int) -> bool:
+        """Whether ``failed`` of ``episodes`` episodes, ended before the time limit, already keep the rule from being
+        met, whatever the others do (its time-limit fraction; a rule without one is never hopeless this way)."""
+        return self.min_time_limit_fraction > 0 and (episodes - failed) / episodes < self.min_time_limit_fraction
 
     def episode_success(self, returns: Any, lengths: Any, reached_limit: Any) -> Any:
         """Per episode (tensors): it reached the time limit and, for a rule over full-length episodes, its reward per

@@ -63,6 +63,9 @@ class ProgressLine:
         if evaluation is not None:
             line += (f" | eval {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
                      f"{': SOLVED' if solved else ''}")
+            if evaluation.cut_at_step is not None:
+                line += (f" (cut at step {evaluation.cut_at_step}: {evaluation.episodes} episodes had failed, too many"
+                         " for the rule)")
         if it == first and eta > LONG_RUN_S:
             line += "\n" + self.long_run_note(end - first, eta)
         return line

@@ -228,7 +228,7 @@ class TaskRunner(OnPolicyRunner):
         self.prepare_evaluation()
         self.alg.eval_mode()
         try:
-            return evaluate(self._evaluation, self.train_cfg.env.seed)
+            return evaluate(self._evaluation, self.train_cfg.env.seed, self.solved_rule)
         finally:
             self.alg.train_mode()
 
