@@ -125,18 +125,25 @@ def test_every_shipped_preset_applies_to_its_task_and_is_refused_by_the_others(p
                 train_config(name, preset)
 
 
-def test_on_a_gpu_the_swingup_changes_only_the_mini_batches_and_the_evaluations_cadence():
+def test_the_swingups_gpu_and_cpu_configs_differ_only_in_their_device_settings():
     default, gpu = train_config("cartpole-swingup"), train_config("cartpole-swingup", device="cuda:0")
     assert (gpu.agent.algorithm.num_mini_batches, gpu.eval.max_interval) == (4, 50)
     assert (default.agent.algorithm.num_mini_batches, default.eval.max_interval) == (8, 25)
     assert gpu.env.device == "cuda:0" and gpu_settings(gpu) == {"agent.algorithm.num_mini_batches": 4,
                                                                  "eval.max_interval": 50}
-    changed = dataclasses.replace(gpu, agent=dataclasses.replace(gpu.agent, algorithm=dataclasses.replace(
-        gpu.agent.algorithm, num_mini_batches=8)), eval=dataclasses.replace(gpu.eval, max_interval=25),
-        env=dataclasses.replace(gpu.env, device="cpu"))
+    changed = dataclasses.replace(gpu, agent=dataclasses.replace(
+        gpu.agent, algorithm=dataclasses.replace(gpu.agent.algorithm, num_mini_batches=8),
+        actor=dataclasses.replace(gpu.agent.actor, hidden_dims=[16, 16]),
+        critic=dataclasses.replace(gpu.agent.critic, hidden_dims=[16, 16])),
+        eval=dataclasses.replace(gpu.eval, max_interval=25), env=dataclasses.replace(gpu.env, device="cpu"))
     assert changed == default, "every other setting is the swing-up's"
     assert train_config("cartpole-swingup", device="cpu") == default
     assert gpu_settings(default) == {}
+    assert device_settings(default) == {"agent.actor.hidden_dims": [16, 16], "agent.critic.hidden_dims": [16, 16]}
+    for variant in ("cartpole-swingup-sparse", "cart-two-pole-swingup"):  # not measured with them
+        assert device_settings(train_config(variant)) == {}, variant
+    assert train_config("cartpole-swingup", learner="apg").agent.actor.hidden_dims == [64, 64], "APG's own"
+    assert train_config("cartpole-balance", learner="apg").agent.actor.hidden_dims == [32, 32], "as measured"
 
 
 def test_on_a_cpu_the_balance_takes_narrow_networks_and_a_gpu_or_a_flag_keeps_the_wide_ones(tmp_path):

@@ -76,6 +76,6 @@ for env_class, words, min_reward_per_step, width, steps_per_env, gym_id in (
         defaults=merge(swingup.TASK.defaults, {"agent": {"max_iterations": 15000, "num_steps_per_env": steps_per_env,
                                                          "actor": networks, "critic": networks},
                                                "eval": {"max_interval": 100}}),
-        gpu_defaults={},  # the single pole's GPU settings were not measured on the chains
+        gpu_defaults={}, cpu_defaults={},  # the single pole's device settings were not measured on the chains
         apg_defaults=APG_DEFAULTS,  # the swing-up's were not measured here
         gym_ids={f"cartpole_warp/{gym_id}-v0": None}))

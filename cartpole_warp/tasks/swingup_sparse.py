@@ -29,6 +29,6 @@ register(dataclasses.replace(
     solved=SolvedRule(min_reward_per_step=0.5, full_episodes_only=True),
     # 1.5x the slowest seed measured (1325 iterations): the reward says nothing until the pole is in the band
     defaults=merge(swingup.TASK.defaults, {"agent": {"max_iterations": 2000}}),
-    gpu_defaults={},  # its figures were measured without the smooth swing-up's GPU settings
+    gpu_defaults={}, cpu_defaults={},  # its figures were measured without the smooth swing-up's device settings
     apg_defaults=APG_DEFAULTS,  # the swing-up's were not measured here
     gym_ids={"cartpole_warp/CartpoleSwingupSparse-v0": None}))
