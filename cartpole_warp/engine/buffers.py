@@ -12,9 +12,10 @@ from .runtime import Shard
 
 class EnvBuffers:
     """The inputs (``actions``, their ``action_history`` for the delay, ``actuator_f``, the ``states_in`` and
-    ``mask_in`` that ``set_state`` starts from, ``all_envs``), the episodes' state (``episodes``: the kernels'
-    ``Episodes`` struct of arrays) and each step's ``results`` (``StepResults``), the guards' per-shard counters, and
-    the observations and final observations of the ``observations`` source; ``torch`` holds the tensor views."""
+    ``mask_in`` that ``set_state`` and ``restart`` start from, ``all_envs``), the episodes' state (``episodes``: the
+    kernels' ``Episodes`` struct of arrays) and each step's ``results`` (``StepResults``), the guards' per-shard
+    counters, and the observations and final observations of the ``observations`` source; ``torch`` holds the tensor
+    views."""
 
     def __init__(self, kernels, num_envs: int, num_roles: int, delay_steps: int, num_shards: int, observations,
                  device: str):
@@ -38,6 +39,8 @@ class EnvBuffers:
         self.diverged_states = buf(wp.int32, num_shards)
         self.states_in = buf(k.State)
         self.mask_in = buf(wp.bool)
+        self.restart_in = buf(wp.int32)
+        """1 where ``restart`` draws new physics (the draw's mask, as an end reason would be)."""
         self.all_envs = wp.full(n, True, dtype=wp.bool, device=device)
         self.obs, self.final_obs = observations.buffers(self.episodes.obs, self.results.final_obs)
         self.torch = self._views()
@@ -49,7 +52,7 @@ class EnvBuffers:
             final_state=wp.to_torch(r.final_state), reward=wp.to_torch(r.reward),
             terminated=wp.to_torch(r.terminated), truncated=wp.to_torch(r.truncated),
             time_out_count=wp.to_torch(self.episodes.time_out_count), states_in=wp.to_torch(self.states_in),
-            mask_in=wp.to_torch(self.mask_in),
+            mask_in=wp.to_torch(self.mask_in), restart_in=wp.to_torch(self.restart_in),
             info={"final_obs": wp.to_torch(self.final_obs), "episode_return": wp.to_torch(r.ended_return),
                   "episode_length": wp.to_torch(r.ended_length), "end_reason": wp.to_torch(r.end_reason)},
             counters={"nonfinite_actions": wp.to_torch(self.nonfinite_actions),

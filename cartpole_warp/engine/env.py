@@ -211,21 +211,30 @@ class BatchedEnv(VectorSpaces, abc.ABC):
         if self.physics.drawn and self.cfg.randomization.at == "reset":
             self.physics.draw(shard, b.episodes.rng_state, b.results.end_reason)
 
-    def _seed(self, seed: int):
+    def _seed(self, seed: int, start: int = 0, stop: int | None = None):
+        """Seed envs [start, stop) (all by default) as envs 0, 1, ... of an env seeded with ``seed``."""
+        stop = self.num_envs if stop is None else stop
         for shard in self.shards:
-            wp.launch(init_rng, dim=shard.num_envs, inputs=[int(seed), shard.start],
-                      outputs=[shard.rows(self.buffers.episodes.rng_state)], device=self.device)
+            lo, hi = max(start, shard.start), min(stop, shard.stop)
+            if lo < hi:
+                wp.launch(init_rng, dim=hi - lo, inputs=[int(seed), lo - start],
+                          outputs=[self.buffers.episodes.rng_state[lo:hi]], device=self.device)
 
     def _reset_all(self):
         """A new episode in every env, and new physics where it is randomized."""
+        self._reset_where(self.buffers.all_envs, None)
+
+    def _reset_where(self, mask: wp.array, ended: wp.array | None):
+        """A new episode where ``mask`` (bool) is set, and new physics where it is randomized and ``ended`` (int32
+        flags; None: everywhere) is set."""
         for shard in self.shards:
             robot, episodes, _ = self._shard_structs[shard.index]
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
-                      inputs=[shard.rows(self.buffers.all_envs), self.params, self._settings],
+                      inputs=[shard.rows(mask), self.params, self._settings],
                       outputs=[robot, episodes], device=self.device)
-            self.observations.start(shard, self.buffers.all_envs)
+            self.observations.start(shard, mask)
             if self.physics.drawn:
-                self.physics.draw(shard, self.buffers.episodes.rng_state, None)
+                self.physics.draw(shard, self.buffers.episodes.rng_state, ended)
 
     def _check(self, name: str, value, shapes: tuple, dtype: "torch.dtype") -> "torch.Tensor":
         from .streams import check_tensor
@@ -246,6 +255,22 @@ class BatchedEnv(VectorSpaces, abc.ABC):
                 self._seed(seed)
             self._reset_all()
         return self.obs_buf.clone(), self._outputs()
+
+    def restart(self, start: int, stop: int, seed: int) -> "torch.Tensor":
+        """Envs [start, stop) begin new episodes exactly as envs 0, 1, ... of an env of ``stop - start`` envs reset with
+        ``seed`` do (their random streams re-seeded: the same start states, physics draws and observation noise); the
+        others go on undisturbed. Returns the observations (all envs)."""
+        check_seed(seed)
+        if not 0 <= start < stop <= self.num_envs:
+            raise ValueError(f"restart: envs [{start}, {stop}) must be a block of the {self.num_envs} envs")
+        views = self.buffers.torch
+        views.mask_in.zero_()
+        views.mask_in[start:stop] = True
+        views.restart_in.copy_(views.mask_in)
+        with self._order:
+            self._seed(seed, start, stop)
+            self._reset_where(self.buffers.mask_in, self.buffers.restart_in)
+        return self.obs_buf.clone()
 
     def step(self, actions: "torch.Tensor"):
         """Apply actions for one env step: (obs, reward, terminated, truncated, info), autoresetting ended envs."""

@@ -1,5 +1,5 @@
 """The evaluation layer: episode statistics and the solved rule that judges them (``statistics``), policy rollouts
-(``rollouts``) and robustness grids (``robustness``)."""
+(``rollouts``), the evaluation inside the training's step (``in_step``) and robustness grids (``robustness``)."""
 
 from ..settings.deprecation import moved_names
 

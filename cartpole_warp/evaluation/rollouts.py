@@ -94,6 +94,49 @@ class FirstEpisodes:
         return dataclasses.replace(stats.summary(), cut_at_step=self.cut_at_step)
 
 
+class FirstEpisodeTally:
+    """Each of ``num_envs`` envs' first episode since ``restart``, counted on the device step by step on persistent
+    tensors (a CUDA graph may hold them): its return, its length and whether it reached the time limit. Steps after
+    the first ``cap`` count for nothing; an episode still running then has reached the limit."""
+
+    def __init__(self, num_envs: int, device: str):
+        self.finished = torch.ones(num_envs, dtype=torch.bool, device=device)
+        """bool: the episode has ended (all, until ``restart``: nothing is counted)."""
+        self.reached = torch.ones_like(self.finished)
+        self.lengths = torch.zeros(num_envs, dtype=torch.int64, device=device)
+        self.returns = torch.zeros(num_envs, dtype=torch.float32, device=device)
+        self.steps = torch.zeros((), dtype=torch.int64, device=device)
+        self.cap = torch.zeros((), dtype=torch.int64, device=device)
+
+    def restart(self, cap: int):
+        """Count first episodes anew, for at most ``cap`` env steps."""
+        self.finished.zero_()
+        self.reached.fill_(True)
+        self.lengths.fill_(cap)
+        self.returns.zero_()
+        self.steps.zero_()
+        self.cap.fill_(cap)
+
+    def add(self, reward: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor):
+        """One env step's rewards and ends (device work only)."""
+        self.steps += 1
+        counting = ~self.finished & (self.steps <= self.cap)
+        self.returns += torch.where(counting, reward, 0.0)
+        ended = (terminated | truncated) & counting
+        self.lengths.copy_(torch.where(ended, self.steps, self.lengths))
+        self.reached.copy_(torch.where(ended, truncated, self.reached))
+        self.finished |= ended
+
+    def counts(self) -> list[int]:
+        """Episodes that have ended, and those that ended before the time limit (one read from the device)."""
+        return torch.stack([self.finished.sum(), (self.finished & ~self.reached).sum()]).tolist()
+
+    def result(self, cut_at_step: int | None = None) -> FirstEpisodes:
+        """The episodes (copies); where ``cut_at_step``, a run stopped there, counting those that had ended."""
+        ended = self.finished.clone() if cut_at_step is not None else None
+        return FirstEpisodes(self.returns.clone(), self.lengths.clone(), self.reached.clone(), cut_at_step, ended)
+
+
 class FirstEpisodesRun:
     """Runs of each env's first episode under ``policy`` (``first_episodes``) on persistent tensors. On CUDA (where
     ``capture``) one step of it, the policy, the env step and the episode bookkeeping, is captured as a CUDA graph when
@@ -102,27 +145,17 @@ class FirstEpisodesRun:
 
     def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True):
         self.env, self.policy = env, policy
-        n, device = env.num_envs, env.device
         self._obs = env.get_observations()
-        self._finished = torch.zeros(n, dtype=torch.bool, device=device)
-        self._reached = torch.ones_like(self._finished)
-        self._lengths = torch.zeros(n, dtype=torch.int64, device=device)
-        self._returns = torch.zeros(n, dtype=torch.float32, device=device)
-        self._steps = torch.zeros((), dtype=torch.int64, device=device)
-        capture = capture and getattr(policy, "capturable", True) and torch.device(device).type == "cuda"
-        self._graph = TorchGraph(device) if capture else None
+        self._tally = FirstEpisodeTally(env.num_envs, env.device)
+        capture = capture and getattr(policy, "capturable", True) and torch.device(env.device).type == "cuda"
+        self._graph = TorchGraph(env.device) if capture else None
         if self._graph is not None:
             self._advance()  # op by op (allocations, cuBLAS on the graph's stream)
             self._advance()  # captured
 
     def _step(self):
         obs, reward, terminated, truncated, _ = self.env.step(self.policy(self._obs).to(torch.float32))
-        self._steps += 1
-        self._returns += torch.where(self._finished, 0.0, reward)
-        ended = (terminated | truncated) & ~self._finished
-        self._lengths.copy_(torch.where(ended, self._steps, self._lengths))
-        self._reached.copy_(torch.where(ended, truncated, self._reached))
-        self._finished |= ended
+        self._tally.add(reward, terminated, truncated)
         self._obs.copy_(obs)
 
     def _advance(self):
@@ -141,11 +174,7 @@ class FirstEpisodesRun:
         steps with the count of episodes that ended before the time limit, stops the run where it says True (the
         result then counts the episodes that had ended)."""
         self._obs.copy_(self.env.reset(seed)[0] if reset else self.env.get_observations())
-        self._finished.zero_()
-        self._reached.fill_(True)
-        self._lengths.fill_(steps)
-        self._returns.zero_()
-        self._steps.zero_()
+        self._tally.restart(steps)
         if on_step is not None:
             on_step(0)
         for step in range(1, steps + 1):
@@ -153,10 +182,9 @@ class FirstEpisodesRun:
             if on_step is not None:
                 on_step(step)
             if (hopeless is not None and step % HOPELESS_CHECK_STEPS == 0 and step < steps
-                    and hopeless(int((self._finished & ~self._reached).sum()))):
-                return FirstEpisodes(self._returns.clone(), self._lengths.clone(), self._reached.clone(), step,
-                                     self._finished.clone())
-        return FirstEpisodes(self._returns.clone(), self._lengths.clone(), self._reached.clone())
+                    and hopeless(self._tally.counts()[1])):
+                return self._tally.result(cut_at_step=step)
+        return self._tally.result()
 
 
 def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,

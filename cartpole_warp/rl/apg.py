@@ -57,6 +57,7 @@ def check_apg(cfg: TrainConfig):
             cfg.env.randomization.action_delay_steps > 0,
         "env.randomization.obs_noise_std (the rollout observes without noise)": cfg.env.randomization.obs_noise_std > 0,
         "agent.torch_compile_mode (the learner steps the networks itself)": cfg.agent.torch_compile_mode is not None,
+        "eval.in_step (the learner steps its envs itself; evaluations run on envs of their own)": cfg.eval.in_step,
     }
     named = [what for what, present in problems.items() if present]
     if named:

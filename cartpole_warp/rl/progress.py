@@ -55,13 +55,16 @@ class ProgressLine:
         self.solved_rule, self.play_metric = cfg.task_spec.solved, cfg.task_spec.play_metric
 
     def __call__(self, it: int, first: int, end: int, stats: EpisodeSummary, steps_per_s: float,
-                 evaluation: EpisodeSummary | None, solved: bool, eta: float) -> str:
-        """The line after iteration ``it`` of iterations ``first`` to ``end`` (exclusive), ``eta`` seconds left."""
+                 evaluation: EpisodeSummary | None, solved: bool, eta: float, policy_iteration: int | None = None,
+                 ) -> str:
+        """The line after iteration ``it`` of iterations ``first`` to ``end`` (exclusive), ``eta`` seconds left;
+        ``policy_iteration``: the iteration of the policy ``evaluation`` judged, where not ``it``'s."""
         width = len(str(end))
         line = (f"it {it + 1:>{width}}/{end} | {self._episodes(stats)} | {steps_per_s / 1e3:6.1f}k steps/s"
                 f" | ETA {format_duration(eta)}")
         if evaluation is not None:
-            line += (f" | eval {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
+            policy = f" of it {policy_iteration + 1}'s policy" if policy_iteration not in (None, it) else ""
+            line += (f" | eval{policy} {self.play_metric} {getattr(evaluation, self.play_metric) or 0.0:.3f}"
                      f"{': SOLVED' if solved else ''}")
             if evaluation.cut_at_step is not None:
                 line += (f" (cut at step {evaluation.cut_at_step}: {evaluation.episodes} episodes had failed, too many"

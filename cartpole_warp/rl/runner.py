@@ -15,10 +15,12 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 
 # isort: split
 import contextlib
+import copy
 import dataclasses
 import io
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -47,6 +49,17 @@ def in_git_repository(path: str) -> bool:
     return any((parent / ".git").exists() for parent in Path(path).resolve().parents)
 
 
+@dataclass
+class Judged:
+    """An evaluation's verdict on the policy after iteration ``iteration``, trained on ``env_steps``."""
+
+    summary: EpisodeSummary
+    iteration: int
+    env_steps: int
+    state: dict | None = None
+    """The policy's checkpoint state (``_state_dict``), where it is no longer the runner's own (None: it is)."""
+
+
 class TaskRunner(OnPolicyRunner):
     """OnPolicyRunner for one training run: ``log_dir`` None writes nothing (no metrics, no checkpoints).
 
@@ -54,6 +67,9 @@ class TaskRunner(OnPolicyRunner):
     is evaluated over whole episodes (``evaluation.evaluate``: play.py's episodes) when an iteration's training
     episodes meet the task's rule (at most every ``eval.min_interval`` iterations) and at least every
     ``eval.max_interval``; only an evaluation decides 'solved', and the best one so far is kept as ``model_best.pt``.
+    Where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``) the same evaluations run on its extra envs
+    instead, beside the training steps: one at a time, on a frozen copy of the policy as it was when due, judged
+    iterations later (``Judged.iteration`` names the policy).
     """
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
@@ -67,6 +83,13 @@ class TaskRunner(OnPolicyRunner):
         self.solved_rule, self.play_metric = task.solved, task.play_metric
         self.eval_env = eval_env
         self._evaluation: FirstEpisodesRun | None = None
+        self.in_step = env.evaluation
+        """The evaluation inside the training's step (None: evaluations run on ``eval_env``, if any)."""
+        self._in_step_policy: tuple[int, int, dict] | None = None
+        """The iteration, env steps and checkpoint state of the policy the in-step evaluation plays."""
+        if self.in_step is not None:
+            self._frozen_actor = copy.deepcopy(self.alg.get_policy()).eval().requires_grad_(False)
+            self.in_step.policy = deterministic(self._frozen_actor)
         self._last_eval_iteration = -1
         self.progress = Progress()
         self.episodes = EpisodeStats(env.device, env.max_episode_length)
@@ -179,23 +202,27 @@ class TaskRunner(OnPolicyRunner):
         now = time.perf_counter()
         iteration_time = now - self._tick
         steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.gpu_world_size
-        evaluation = self._evaluate_if_due(it, stats)
-        self._tick = time.perf_counter()
-        solved = evaluation is not None and self.solved_rule(evaluation)
         p = self.progress
         p.iterations, p.env_steps = it + 1, p.env_steps + steps
+        judged = self._evaluate_if_due(it, stats)
+        self._tick = time.perf_counter()
+        evaluation = judged.summary if judged is not None else None
+        solved = evaluation is not None and self.solved_rule(evaluation)
         p.train_time_s += self._tick - now + iteration_time
         record = {"iteration": it, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
                   **dataclasses.asdict(stats), "env_steps_per_s": steps / iteration_time,
                   "collection_ms": collect_time * 1e3, "learning_ms": learn_time * 1e3, "solved": solved}
-        if evaluation is not None:
+        if judged is not None:
             record["evaluation"] = dataclasses.asdict(evaluation) | {"seconds": round(self._tick - now, 3)}
+            if judged.iteration != it:
+                record["evaluation"]["policy_iteration"] = judged.iteration
         p.history.append(record)
         if solved and p.solved_at is None:
-            p.solved_at = {"iterations": it + 1, "env_steps": p.env_steps, "train_time_s": round(p.train_time_s, 3),
+            p.solved_at = {"iterations": judged.iteration + 1, "env_steps": judged.env_steps,
+                           "train_time_s": round(p.train_time_s, 3),
                            self.play_metric: getattr(evaluation, self.play_metric)}
-        if evaluation is not None:
-            self._keep_if_best(it, evaluation, solved)
+        if judged is not None:
+            self._keep_if_best(judged, solved)
         if self.train_cfg.console == "rsl_rl":
             self.logger.log(it=it, start_it=self._first_iteration, total_it=self._end_iteration,
                             collect_time=collect_time, learn_time=learn_time, loss_dict=loss_dict,
@@ -209,28 +236,48 @@ class TaskRunner(OnPolicyRunner):
                 for tag, value in scalars.items():
                     self.logger.writer.add_scalar(tag, value, it)
             print(self.progress_line(it, self._first_iteration, self._end_iteration, stats, steps / iteration_time,
-                                     evaluation, solved, self._eta_s(it)), flush=True)
+                                     evaluation, solved, self._eta_s(it), judged and judged.iteration), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
             self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
         self.stop_reason = joint_stop(wanted, self.device, self.is_distributed)
 
-    def _evaluate_if_due(self, it: int, stats: EpisodeSummary) -> EpisodeSummary | None:
-        """The evaluation of the policy after iteration ``it``, where one is due (None otherwise, and always without an
-        ``eval_env``)."""
-        if self.eval_env is None:
-            return None
+    def _evaluation_due(self, it: int, stats: EpisodeSummary) -> bool:
+        """Whether the policy after iteration ``it`` is to be evaluated (``eval.min_interval``, ``max_interval``)."""
         since = it - self._last_eval_iteration
         limits = self.train_cfg.eval
-        if not (since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))):
+        return since >= limits.max_interval or (since >= limits.min_interval and self.solved_rule(stats))
+
+    def _evaluate_if_due(self, it: int, stats: EpisodeSummary) -> Judged | None:
+        """The verdict of an evaluation after iteration ``it``: on ``eval_env``, of the policy after ``it`` where one is
+        due; in the step, of the policy it froze, where its episodes are over (one is begun where it is due and none
+        runs). None otherwise, and always without an evaluation."""
+        if self.in_step is not None:
+            return self._in_step_verdict(it, stats)
+        if self.eval_env is None or not self._evaluation_due(it, stats):
             return None
         self._last_eval_iteration = it
         self.prepare_evaluation()
         self.alg.eval_mode()
         try:
-            return evaluate(self._evaluation, self.train_cfg.env.seed, self.solved_rule)
+            return Judged(evaluate(self._evaluation, self.train_cfg.env.seed, self.solved_rule), it,
+                          self.progress.env_steps)
         finally:
             self.alg.train_mode()
+
+    def _in_step_verdict(self, it: int, stats: EpisodeSummary) -> Judged | None:
+        """``_evaluate_if_due`` for the evaluation inside the step."""
+        judged = None
+        if self.in_step.running:
+            summary = self.in_step.verdict(self.cfg["num_steps_per_env"], self.solved_rule)
+            if summary is not None:
+                judged = Judged(summary, *self._in_step_policy)
+        if not self.in_step.running and self._evaluation_due(it, stats):
+            self._last_eval_iteration = it
+            self._frozen_actor.load_state_dict(self.alg.get_policy().state_dict())
+            self._in_step_policy = (it, self.progress.env_steps, copy.deepcopy(self._state_dict()))
+            self.in_step.begin()
+        return judged
 
     def prepare_evaluation(self):
         """Make the evaluation's run of the policy on ``eval_env`` (on a GPU: capture its CUDA graph) if not made yet;
@@ -239,15 +286,17 @@ class TaskRunner(OnPolicyRunner):
             self._evaluation = FirstEpisodesRun(self.eval_env, self.policy())
             self.alg.train_mode()
 
-    def _keep_if_best(self, it: int, evaluation: EpisodeSummary, solved: bool):
-        """Save ``model_best.pt`` where this evaluation beats the best so far (solved first, then the play metric)."""
-        score = (solved, getattr(evaluation, self.play_metric) or 0.0)
+    def _keep_if_best(self, judged: Judged, solved: bool):
+        """Save the judged policy as ``model_best.pt`` where its evaluation beats the best so far (solved first, then
+        the play metric)."""
+        score = (solved, getattr(judged.summary, self.play_metric) or 0.0)
         best = self.progress.best
         if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):
             return
-        self.progress.best = {"iteration": it, "solved": solved, self.play_metric: score[1]}
+        self.progress.best = {"iteration": judged.iteration, "solved": solved, self.play_metric: score[1]}
         if self.run_dir is not None:
-            self.save(str(self.run_dir / BEST_CHECKPOINT))
+            state = judged.state if judged.state is not None else self._state_dict()
+            self._write(str(self.run_dir / BEST_CHECKPOINT), state, judged.iteration)
 
     def _eta_s(self, it: int) -> float:
         """``eta_s`` after iteration ``it``: the evaluations due are the periodic ones (``eval.max_interval``)."""
@@ -255,16 +304,19 @@ class TaskRunner(OnPolicyRunner):
         evaluations = [h["evaluation"]["seconds"] for h in self.progress.history
                        if h["iteration"] >= self._first_iteration and "evaluation" in h]
         due = (self._end_iteration - 1 - self._last_eval_iteration) // self.train_cfg.eval.max_interval
+        evaluates = self.eval_env is not None or self.in_step is not None
         return eta_s(time.perf_counter() - self._start, evaluations, it + 1 - self._first_iteration, left,
-                     due if self.eval_env is not None else 0)
+                     due if evaluates else 0)
 
     def save(self, path: str, infos: dict | None = None) -> None:
         """Write the models, optimizer, iteration and progress to ``path`` atomically."""
-        saved = self._state_dict()
-        saved["iter"] = self.current_learning_iteration
-        saved["infos"] = infos if infos is not None else dataclasses.asdict(self.progress)
+        self._write(path, self._state_dict(), self.current_learning_iteration, infos)
+
+    def _write(self, path: str, state: dict, iteration: int, infos: dict | None = None):
+        """``save`` of ``state`` (``_state_dict``'s) as the checkpoint of ``iteration``."""
+        saved = dict(state, iter=iteration, infos=infos if infos is not None else dataclasses.asdict(self.progress))
         atomic_write(Path(path), lambda tmp: torch.save(saved, tmp))
-        self.logger.save_model(path, self.current_learning_iteration)
+        self.logger.save_model(path, iteration)
 
     def load(self, path: str, load_cfg: dict | None = None, strict: bool = True,
              map_location: str | None = None) -> dict:

@@ -18,6 +18,7 @@ import torch
 
 from ..engine import camera
 from ..engine.runtime import free_memory_bytes, resolve_device, timed
+from ..evaluation.in_step import InStepEvaluation
 from ..settings.config import ConfigError
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
@@ -101,13 +102,16 @@ class Training:
         torch.manual_seed(env_cfg.seed)
         cfg.apply_torch_threads()
         self.task = cfg.task_spec
-        self.env = RslRlVecEnv(self.task.env_class(env_cfg))
-        self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
+        in_step = cfg.eval.in_step and ranks.writes  # the process that writes the run evaluates
+        extra = cfg.eval.num_envs if in_step else 0
+        batched = self.task.env_class(dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs + extra))
+        self.env = RslRlVecEnv(batched, InStepEvaluation(batched, extra, cfg.env.seed) if in_step else None)
+        self.timing_s = (timing_s if timing_s is not None else {}) | batched.build_time_s
         """Where the run's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); summary.json keeps
         them."""
         self.eval_env = None
-        """The evaluation's envs (the process that writes the run evaluates: ``TaskRunner``)."""
-        if ranks.writes:
+        """The evaluation's envs where they are an env of their own (``TaskRunner``)."""
+        if ranks.writes and not in_step:
             with timed(self.timing_s, "eval_env"):
                 self.eval_env = self.task.env_class(dataclasses.replace(env_cfg, num_envs=cfg.eval.num_envs,
                                                                         seed=cfg.env.seed))

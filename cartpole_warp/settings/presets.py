@@ -36,8 +36,9 @@ Console = Literal["compact", "rsl_rl"]
 @dataclass
 class EvalConfig:
     """The deterministic evaluation that decides 'solved' and picks the best checkpoint: the policy's mean action,
-    each env's first episode from the run's seed to the time limit, on a separate batch of envs. With ``num_envs``
-    equal to play.py's --num-envs (256 by default) these are the episodes ``play.py --headless`` plays."""
+    each env's first episode from the run's seed to the time limit, on a batch of envs of its own (or inside the
+    training's: ``in_step``). With ``num_envs`` equal to play.py's --num-envs (256 by default) these are the episodes
+    ``play.py --headless`` plays."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
@@ -49,6 +50,9 @@ class EvalConfig:
     max_interval: Count = 25
     """... and after this many iterations without an evaluation (a policy that fails only through its exploration
     noise)."""
+    in_step: Flag = False
+    """Run the evaluation's envs inside the training's env, stepped with it by a frozen copy of the policy (one
+    evaluation at a time, its verdict an episode later), instead of as an env of their own between iterations."""
 
 
 @dataclass

@@ -29,11 +29,12 @@ DEFAULT_TASK = "cartpole-balance"
 
 APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,
                                                     "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
-                                                    "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}}}
+                                                    "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
+                "eval": {"in_step": False}}
 """A task's settings for ``--algorithm apg`` unless it names its own (``Task.apg_defaults``): 64 envs, windows of 32
 env steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on every device (a
-task's PPO may take narrower ones on a CPU); chosen on the balance and the swing-up (docs/benchmarks.md, "Training by
-backpropagation")."""
+task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself);
+chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from ..engine.env import BatchedEnv
+from ..evaluation.in_step import InStepEvaluation
 
 
 class RslRlVecEnv(VecEnv):
@@ -26,11 +27,14 @@ class RslRlVecEnv(VecEnv):
     ``extras`` also carries the env's ``info`` (``episode_return``, ``episode_length``, ``end_reason``,
     ``final_obs``: valid where ``dones``), from which a training loop can keep episode statistics without indexing or
     a host sync per step.
+
+    With an ``evaluation`` (``InStepEvaluation``: the env's last envs) rsl-rl sees only the envs before it; each step
+    steps the evaluation's envs too, with the evaluation's actions, and hands it their results.
     """
 
-    def __init__(self, env: BatchedEnv):
-        self.env = env
-        self.num_envs = env.num_envs
+    def __init__(self, env: BatchedEnv, evaluation: InStepEvaluation | None = None):
+        self.env, self.evaluation = env, evaluation
+        self.num_envs = env.num_envs if evaluation is None else evaluation.start
         self.num_actions = env.num_actions
         self.max_episode_length = env.max_episode_length
         self.device = env.device
@@ -46,15 +50,16 @@ class RslRlVecEnv(VecEnv):
     @property
     def episode_length_buf(self) -> torch.Tensor:
         """(N,) env steps into the current episodes; assigning copies into the env's buffer."""
-        return self.env.episode_length_buf
+        return self.env.episode_length_buf[:self.num_envs]
 
     @episode_length_buf.setter
     def episode_length_buf(self, value: torch.Tensor):
-        self.env.episode_length_buf = value
+        self.env.episode_length_buf[:self.num_envs] = value
 
     def _wrap(self, obs: torch.Tensor) -> TensorDict:
-        groups = {"policy": obs} | ({"critic": self.env.get_state_observations()} if self.images else {})
-        return TensorDict(groups, batch_size=[self.num_envs], device=self.device)
+        n = self.num_envs
+        groups = {"policy": obs[:n]} | ({"critic": self.env.get_state_observations()[:n]} if self.images else {})
+        return TensorDict(groups, batch_size=[n], device=self.device)
 
     def get_observations(self) -> TensorDict:
         """Current observations as ``TensorDict({"policy": (N, num_obs)})``."""
@@ -62,7 +67,14 @@ class RslRlVecEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """One env step: (obs, rewards (N,), dones (N,), extras)."""
+        n, evaluation = self.num_envs, self.evaluation
+        if evaluation is not None:
+            actions = torch.cat([actions.to(torch.float32).reshape(n, -1), evaluation.actions()])
         obs, reward, terminated, truncated, info = self.env.step(actions.to(torch.float32))
+        if evaluation is not None:
+            evaluation.after_step(obs[n:], reward[n:], terminated[n:], truncated[n:])
+            reward, terminated, truncated = reward[:n], terminated[:n], truncated[:n]
+            info = {key: value[:n] if value.dim() else value for key, value in info.items()}
         return self._wrap(obs), reward, (terminated | truncated).long(), {"time_outs": truncated, **info}
 
     def close(self):
