@@ -17,12 +17,13 @@ from cartpole_warp.rl.runs import BEST_CHECKPOINT
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 ROBUST = {"randomization": {"at": "reset", "mass_scale": {"cart": [0.7, 2.5]}, "actuator_scale": [0.6, 1.4],
-                            "obs_noise_std": 0.01}}
-"""Physics drawn at each episode start and observation noise: what a restart must draw as a fresh env does."""
+                            "obs_noise_std": 0.01, "action_delay_steps": 2}}
+"""Physics drawn at each episode start, observation noise and a random action delay: what a restart must draw (and
+forget) as a fresh env does."""
 
 
 def make(name: str, num_envs: int, seed: int):
-    """``name``'s env of ``num_envs`` on the test device, its state tasks with ``ROBUST`` randomization."""
+    """``name``'s env of ``num_envs`` on the test device with ``ROBUST`` randomization."""
     overrides = ROBUST
     return tasks.make(name, num_envs=num_envs, device=DEVICE, seed=seed, **overrides)
 
@@ -82,8 +83,9 @@ def test_the_in_step_evaluation_judges_the_episodes_play_plays(name):
 
 @pytest.mark.parametrize("name", tasks.names())
 def test_the_training_envs_step_the_same_with_the_evaluation_envs_beside_them(name, tmp_path):
-    """The first rollout (observations, actions, rewards, dones) and update of a run, same seed, with and without
-    ``eval.in_step``."""
+    """A run's third rollout (observations, actions, rewards, dones) and its networks after three updates, same seed,
+    with and without ``eval.in_step``: an evaluation is due after every iteration, so the evaluation's envs restart
+    after the first and step through the rollouts compared."""
     from cartpole_warp.rl.config import train_config
     from cartpole_warp.rl.training import Training
 
@@ -91,11 +93,12 @@ def test_the_training_envs_step_the_same_with_the_evaluation_envs_beside_them(na
     for in_step in (False, True):
         cfg = train_config(name, device=DEVICE)
         cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 16, DEVICE, "none", str(tmp_path)
-        cfg.eval.num_envs, cfg.eval.in_step = 8, in_step
+        cfg.eval.num_envs, cfg.eval.in_step, cfg.eval.min_interval, cfg.eval.max_interval = 8, in_step, 1, 1
         training = Training(cfg, tmp_path / f"run{in_step}")
         assert (training.runner.in_step is not None) == in_step and training.env.num_envs == 16
-        training.runner.learn(1)
+        training.runner.learn(3)
         runs.append(training.runner)
+    assert runs[1]._in_step_policy is not None, "evaluations began (the first after iteration 0: its envs restarted)"
     storages = [runner.alg.storage for runner in runs]
     for field in ("actions", "rewards", "dones"):
         assert torch.equal(*(getattr(storage, field) for storage in storages)), field
@@ -127,7 +130,8 @@ def test_the_verdict_names_the_frozen_policy_keeps_it_as_best_and_a_hopeless_one
     assert line.startswith(f"it  {iterations + 1}/") and "eval of it 1's policy time_limit_fraction 1.000" in line
     assert training.runner.progress.best == {"iteration": 0, "solved": True, "time_limit_fraction": 1.0}
     best = torch.load(training.run_dir / BEST_CHECKPOINT, weights_only=False)
-    assert best["iter"] == 0
+    assert best["iter"] == 0 and best["infos"]["iterations"] == 1, "resuming from it continues the judged policy"
+    assert best["infos"]["best"] == training.runner.progress.best and best["infos"]["solved_at"]["iterations"] == 1
     assert torch.equal(best["actor_state_dict"]["mlp.0.weight"][0].cpu(), torch.tensor(BALANCING_GAINS))
     played = call_main("play", "--headless", "--run", training.run_dir, "--num-envs", training.cfg.eval.num_envs)
     assert played.returncode == 0, played.stderr

@@ -257,9 +257,10 @@ class BatchedEnv(VectorSpaces, abc.ABC):
         return self.obs_buf.clone(), self._outputs()
 
     def restart(self, start: int, stop: int, seed: int) -> "torch.Tensor":
-        """Envs [start, stop) begin new episodes exactly as envs 0, 1, ... of an env of ``stop - start`` envs reset with
-        ``seed`` do (their random streams re-seeded: the same start states, physics draws and observation noise); the
-        others go on undisturbed. Returns the observations (all envs)."""
+        """Envs [start, stop) begin new episodes as envs 0, 1, ... of an env of ``stop - start`` envs reset with
+        ``seed`` do (their random streams re-seeded: the same start states, physics draws and observation noise;
+        bitwise with Featherstone, whose state is the joints'); the others go on undisturbed. Returns the observations
+        (all envs)."""
         check_seed(seed)
         if not 0 <= start < stop <= self.num_envs:
             raise ValueError(f"restart: envs [{start}, {stop}) must be a block of the {self.num_envs} envs")

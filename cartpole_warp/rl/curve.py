@@ -39,7 +39,8 @@ def plot_learning_curve(path: Path, history: list[dict], task: Task, title: str)
         axes.plot([h["iteration"] + 1 for h in trained], [h[key] for h in trained], color="tab:blue",
                   label="training episodes")
         evaluated = [h for h in history if (h.get("evaluation") or {}).get(key) is not None]
-        axes.plot([h["iteration"] + 1 for h in evaluated], [h["evaluation"][key] for h in evaluated], "o",
+        axes.plot([h["evaluation"].get("policy_iteration", h["iteration"]) + 1 for h in evaluated],
+                  [h["evaluation"][key] for h in evaluated], "o",
                   color="tab:green", label="evaluation\n(deterministic policy)")
         if thresholds.get(key) is not None:
             axes.axhline(thresholds[key], color="tab:red", linestyle="--", label=f"solved: >= {thresholds[key]:g}")

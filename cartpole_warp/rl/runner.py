@@ -58,6 +58,8 @@ class Judged:
     env_steps: int
     state: dict | None = None
     """The policy's checkpoint state (``_state_dict``), where it is no longer the runner's own (None: it is)."""
+    infos: dict | None = None
+    """The progress when that policy was trained (a checkpoint's ``infos``), with ``state``."""
 
 
 class TaskRunner(OnPolicyRunner):
@@ -85,8 +87,8 @@ class TaskRunner(OnPolicyRunner):
         self._evaluation: FirstEpisodesRun | None = None
         self.in_step = env.evaluation
         """The evaluation inside the training's step (None: evaluations run on ``eval_env``, if any)."""
-        self._in_step_policy: tuple[int, int, dict] | None = None
-        """The iteration, env steps and checkpoint state of the policy the in-step evaluation plays."""
+        self._in_step_policy: tuple[int, int, dict, dict] | None = None
+        """The iteration, env steps, checkpoint state and progress of the policy the in-step evaluation plays."""
         if self.in_step is not None:
             self._frozen_actor = copy.deepcopy(self.alg.get_policy()).eval().requires_grad_(False)
             self.in_step.policy = deterministic(self._frozen_actor)
@@ -233,8 +235,8 @@ class TaskRunner(OnPolicyRunner):
                 scalars = metrics(stats, evaluation, loss_dict, self.alg.learning_rate,
                                   self.action_std.mean().item(), steps / iteration_time, collect_time,
                                   learn_time)
-                for tag, value in scalars.items():
-                    self.logger.writer.add_scalar(tag, value, it)
+                for tag, value in scalars.items():  # an evaluation at the iteration of the policy it judged
+                    self.logger.writer.add_scalar(tag, value, judged.iteration if tag.startswith("Eval/") else it)
             print(self.progress_line(it, self._first_iteration, self._end_iteration, stats, steps / iteration_time,
                                      evaluation, solved, self._eta_s(it), judged and judged.iteration), flush=True)
         if self.on_iteration is not None and self.gpu_global_rank == 0:
@@ -275,7 +277,8 @@ class TaskRunner(OnPolicyRunner):
         if not self.in_step.running and self._evaluation_due(it, stats):
             self._last_eval_iteration = it
             self._frozen_actor.load_state_dict(self.alg.get_policy().state_dict())
-            self._in_step_policy = (it, self.progress.env_steps, copy.deepcopy(self._state_dict()))
+            self._in_step_policy = (it, self.progress.env_steps, copy.deepcopy(self._state_dict()),
+                                    copy.deepcopy(dataclasses.asdict(self.progress)))
             self.in_step.begin()
         return judged
 
@@ -294,9 +297,11 @@ class TaskRunner(OnPolicyRunner):
         if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):
             return
         self.progress.best = {"iteration": judged.iteration, "solved": solved, self.play_metric: score[1]}
-        if self.run_dir is not None:
+        if self.run_dir is not None:  # resuming from it continues the judged policy's progress, verdicts included
             state = judged.state if judged.state is not None else self._state_dict()
-            self._write(str(self.run_dir / BEST_CHECKPOINT), state, judged.iteration)
+            infos = None if judged.infos is None else dict(judged.infos, best=self.progress.best,
+                                                          solved_at=self.progress.solved_at)
+            self._write(str(self.run_dir / BEST_CHECKPOINT), state, judged.iteration, infos)
 
     def _eta_s(self, it: int) -> float:
         """``eta_s`` after iteration ``it``: the evaluations due are the periodic ones (``eval.max_interval``)."""

@@ -144,12 +144,13 @@ class Progress:
     train_time_s: float = 0.0
     solved_at: dict | None = None
     """``{"iterations", "env_steps", "train_time_s", <play metric>}`` of the first evaluation that met the task's
-    rule."""
+    rule: the iterations and env steps that trained the judged policy, the training seconds until the verdict (later
+    for an evaluation inside the step, ``eval.in_step``)."""
     best: dict | None = None
     """``{"iteration", "solved", <play metric>}`` of the best evaluation so far (its policy: ``model_best.pt``)."""
     history: list[dict] = field(default_factory=list)
     """One entry per iteration: the training episodes' means, env steps, time, solved, and the evaluation's means
-    ('evaluation') where one ran."""
+    ('evaluation') where a verdict came (with 'policy_iteration' where it judged an earlier iteration's policy)."""
 
 
 @dataclass

@@ -53,20 +53,22 @@ def bytes_per_env(cfg: TrainConfig) -> dict[str, int]:
 
 
 def check_memory(cfg: TrainConfig, device: str):
-    """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs would not fit
-    in the free memory of the host or of ``device``, before anything is allocated."""
+    """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs (and the
+    evaluation's inside the step, ``eval.in_step``, counted as training envs) would not fit in the free memory of the
+    host or of ``device``, before anything is allocated."""
     per_env = bytes_per_env(cfg)
     needs = {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
+    evaluation_envs = cfg.eval.num_envs if cfg.eval.in_step else 0
     for where, need_per_env in needs.items():
-        need, free = cfg.env.num_envs * need_per_env, free_memory_bytes(where)
+        need, free = (cfg.env.num_envs + evaluation_envs) * need_per_env, free_memory_bytes(where)
         if need > free:
             steps = cfg.agent.num_steps_per_env
             frames = ", the camera's frames" if cfg.env.camera.enabled else ""
             raise ConfigError(
                 f"training {cfg.env.num_envs:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
                 f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of {steps} steps "
-                f"per env); {where} has {free / 1e9:,.1f} GB free: use at most ~{free // need_per_env:,} envs "
-                "(--num-envs) or fewer --agent.num-steps-per-env")
+                f"per env); {where} has {free / 1e9:,.1f} GB free: use at most "
+                f"~{free // need_per_env - evaluation_envs:,} envs (--num-envs) or fewer --agent.num-steps-per-env")
 
 
 def median_of(history: list[dict], key: str) -> float | None:
