@@ -58,8 +58,8 @@ class InStepEvaluation:
         the rule can no longer be met (``SolvedRule.hopeless``: then cut, counting the episodes that had ended); None
         while it runs on. A read from the device."""
         self.steps_run += steps
-        ended, failed = (int(count) for count in self._tally.counts())
-        if self.steps_run >= self.steps or ended == self.num_envs:
+        ended, failed = self._tally.counts() if self.steps_run < self.steps else (self.num_envs, 0)
+        if ended == self.num_envs:
             result = self._tally.result()
         elif rule.hopeless(failed, self.num_envs):
             result = self._tally.result(cut_at_step=self.steps_run)

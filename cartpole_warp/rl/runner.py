@@ -58,8 +58,6 @@ class Judged:
     env_steps: int
     state: dict | None = None
     """The policy's checkpoint state (``_state_dict``), where it is no longer the runner's own (None: it is)."""
-    infos: dict | None = None
-    """The progress when that policy was trained (a checkpoint's ``infos``), with ``state``."""
 
 
 class TaskRunner(OnPolicyRunner):
@@ -87,8 +85,8 @@ class TaskRunner(OnPolicyRunner):
         self._evaluation: FirstEpisodesRun | None = None
         self.in_step = env.evaluation
         """The evaluation inside the training's step (None: evaluations run on ``eval_env``, if any)."""
-        self._in_step_policy: tuple[int, int, dict, dict] | None = None
-        """The iteration, env steps, checkpoint state and progress of the policy the in-step evaluation plays."""
+        self._in_step_policy: tuple[int, int, dict] | None = None
+        """The iteration, env steps and checkpoint state of the policy the in-step evaluation plays."""
         if self.in_step is not None:
             self._frozen_actor = copy.deepcopy(self.alg.get_policy()).eval().requires_grad_(False)
             self.in_step.policy = deterministic(self._frozen_actor)
@@ -277,8 +275,7 @@ class TaskRunner(OnPolicyRunner):
         if not self.in_step.running and self._evaluation_due(it, stats):
             self._last_eval_iteration = it
             self._frozen_actor.load_state_dict(self.alg.get_policy().state_dict())
-            self._in_step_policy = (it, self.progress.env_steps, copy.deepcopy(self._state_dict()),
-                                    copy.deepcopy(dataclasses.asdict(self.progress)))
+            self._in_step_policy = (it, self.progress.env_steps, copy.deepcopy(self._state_dict()))
             self.in_step.begin()
         return judged
 
@@ -297,11 +294,18 @@ class TaskRunner(OnPolicyRunner):
         if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):
             return
         self.progress.best = {"iteration": judged.iteration, "solved": solved, self.play_metric: score[1]}
-        if self.run_dir is not None:  # resuming from it continues the judged policy's progress, verdicts included
-            state = judged.state if judged.state is not None else self._state_dict()
-            infos = None if judged.infos is None else dict(judged.infos, best=self.progress.best,
-                                                          solved_at=self.progress.solved_at)
-            self._write(str(self.run_dir / BEST_CHECKPOINT), state, judged.iteration, infos)
+        if self.run_dir is not None:
+            if judged.state is None:
+                self.save(str(self.run_dir / BEST_CHECKPOINT))
+            else:  # an earlier policy: resuming from it continues its progress, verdicts included
+                self._write(str(self.run_dir / BEST_CHECKPOINT), judged.state, judged.iteration,
+                            self._progress_at(judged.iteration))
+
+    def _progress_at(self, iteration: int) -> dict:
+        """The progress as it stood after ``iteration`` (a checkpoint's ``infos``), with the verdicts since."""
+        history = [h for h in self.progress.history if h["iteration"] <= iteration]
+        return dict(dataclasses.asdict(self.progress), iterations=iteration + 1, env_steps=history[-1]["env_steps"],
+                    train_time_s=history[-1]["train_time_s"], history=history)
 
     def _eta_s(self, it: int) -> float:
         """``eta_s`` after iteration ``it``: the evaluations due are the periodic ones (``eval.max_interval``)."""

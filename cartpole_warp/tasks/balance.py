@@ -117,7 +117,7 @@ TASK = register(Task(
     solved=SolvedRule(min_reward_per_step=0.9, min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
     gym_ids={"cartpole_warp/Cartpole-v0": None, "cartpole_warp/CartpoleTutorial-v0": "tutorial"},
-    # on a CPU the networks' products and ELUs cost as much as the env: 8 x 8 solved seeds 0-9 as 32 x 32 did, in
-    # two thirds of the time (docs/benchmarks.md)
+    # on a CPU the networks' products and ELUs cost as much as the env: 8 x 8 solved seeds 0-9 as 32 x 32 did, sooner
+    # (docs/benchmarks.md)
     cpu_defaults={"agent": {"actor": {"hidden_dims": [8, 8]}, "critic": {"hidden_dims": [8, 8]}}},
 ))

@@ -68,7 +68,7 @@ for env_class, words, min_reward_per_step, width, steps_per_env, gpu_defaults, g
     # thousands of iterations: an evaluation at most every 100, so that evaluations stay a small part of training;
     # wider networks than the single pole's 32 x 32, with which the chains levelled off, and for two poles 32 steps
     # per env, with which every seed solved; on a GPU the three poles evaluate inside the training's step, where
-    # their ~50 evaluations cost more than the extra envs and the verdict's wait (docs/benchmarks.md)
+    # their many evaluations cost more than the extra envs and the verdict's wait (docs/benchmarks.md)
     networks = {"hidden_dims": [width, width]}
     register(replace(
         swingup.TASK, name=f"cart-{words}-pole-swingup", env_class=env_class,

@@ -156,7 +156,7 @@ TASK = register(Task(
     # a GPU: an iteration ~40% cheaper with half the mini-batches, and an evaluation (~10 iterations there) at least
     # every 50 iterations instead of 25 (docs/benchmarks.md)
     gpu_defaults={"agent": {"algorithm": {"num_mini_batches": 4}}, "eval": {"max_interval": 50}},
-    # a CPU: 16 x 16 networks, each iteration ~20% cheaper and no more of them (seeds 0-9; docs/benchmarks.md)
+    # a CPU: 16 x 16 networks, each iteration cheaper and no more of them (seeds 0-9; docs/benchmarks.md)
     cpu_defaults={"agent": {"actor": {"hidden_dims": [16, 16]}, "critic": {"hidden_dims": [16, 16]}}},
     # analytic policy gradients: wider networks than PPO's (seed 0 on an H200 at 286 iterations, 449 with 32 x 32), a
     # budget of 1.5x the slowest seed that solved (733 iterations; docs/benchmarks.md)

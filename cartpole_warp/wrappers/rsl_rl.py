@@ -67,10 +67,10 @@ class RslRlVecEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """One env step: (obs, rewards (N,), dones (N,), extras)."""
-        n, evaluation = self.num_envs, self.evaluation
+        n, evaluation, actions = self.num_envs, self.evaluation, actions.to(torch.float32)
         if evaluation is not None:
-            actions = torch.cat([actions.to(torch.float32).reshape(n, -1), evaluation.actions()])
-        obs, reward, terminated, truncated, info = self.env.step(actions.to(torch.float32))
+            actions = torch.cat([actions.reshape(n, -1), evaluation.actions()])
+        obs, reward, terminated, truncated, info = self.env.step(actions)
         if evaluation is not None:
             evaluation.after_step(obs[n:], reward[n:], terminated[n:], truncated[n:])
             reward, terminated, truncated = reward[:n], terminated[:n], truncated[:n]
