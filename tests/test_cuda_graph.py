@@ -32,15 +32,16 @@ def test_graphed_iterations_equal_launched_ones(cuda):
         torch.manual_seed(1)
         torch.cuda.manual_seed(1)
         r.learn(4)
-    assert graphed._rollout_graph.graph is not None and graphed.alg._graph.graph is not None, "no graph was used"
-    assert launched._rollout_graph is None and launched.alg._graph is None
+    assert graphed.learner._rollout_graph.graph is not None, "no graph was used"
+    assert graphed.alg._graph.graph is not None, "no graph was used"
+    assert launched.learner._rollout_graph is None and launched.alg._graph is None
     graphed.release_graphs()
-    assert graphed._rollout_graph.graph is None and graphed.alg._graph.graph is None
+    assert graphed.learner._rollout_graph.graph is None and graphed.alg._graph.graph is None
     for r in (graphed, launched):
         torch.manual_seed(2)
         torch.cuda.manual_seed(2)
         r.learn(3)
-    assert graphed._rollout_graph.graph is not None, "learn captures again after release_graphs"
+    assert graphed.learner._rollout_graph.graph is not None, "learn captures again after release_graphs"
     for ours, theirs in zip(graphed.alg.actor.parameters(), launched.alg.actor.parameters(), strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)
     for ours, theirs in zip(graphed.progress.history, launched.progress.history, strict=True):

@@ -98,7 +98,8 @@ def test_the_training_envs_step_the_same_with_the_evaluation_envs_beside_them(na
         assert (training.runner.in_step is not None) == in_step and training.env.num_envs == 16
         training.runner.learn(3)
         runs.append(training.runner)
-    assert runs[1]._in_step_policy is not None, "evaluations began (the first after iteration 0: its envs restarted)"
+    assert runs[1].evaluations.in_step.judged_policy is not None, \
+        "evaluations began (the first after iteration 0: its envs restarted)"
     storages = [runner.alg.storage for runner in runs]
     for field in ("actions", "rewards", "dones"):
         assert torch.equal(*(getattr(storage, field) for storage in storages)), field

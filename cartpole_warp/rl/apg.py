@@ -1,4 +1,4 @@
-"""``ApgRunner``: training by short-horizon analytic policy gradients through the simulator (SHAC: Xu et al.,
+"""``ApgLearner``: training by short-horizon analytic policy gradients through the simulator (SHAC: Xu et al.,
 "Accelerated Policy Learning with Parallel Differentiable Simulation", ICLR 2022), for any state task on
 SolverFeatherstone.
 
@@ -9,23 +9,27 @@ actor's actions and ascends, by the gradient through the simulator's adjoints, t
 the discounted value (a target critic's) of where each env's window ends: after an episode's end the window's later
 steps count for nothing, and a termination's value is 0. The critic then fits TD(lambda) targets of the window. Envs
 carry their states from window to window; an env whose episode ended starts its next one from the task's reset
-distribution (drawn by the training env, whose physics, randomized or not, the rollout simulates). Everything else is
-``TaskRunner``'s: the same actor and critic networks (rsl-rl's, built by its PPO, whose own update is not used), the
-episode statistics, the evaluations and the solved rule, checkpoints, exports and ``summary.json``.
+distribution (drawn by the training env, whose physics, randomized or not, the rollout simulates). The actor and
+critic are rsl-rl's networks, built as PPO's are (``policies.build_networks``); the loop around the learner is the
+runner's (``TaskRunner``): episode statistics, evaluations and the solved rule, checkpoints, exports, ``summary.json``.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import torch
 from tensordict import TensorDict
 
+from ..engine.streams import PhaseClock
+from ..evaluation.statistics import EpisodeStats
 from ..gradients.rollout import DifferentiableRollout, Trajectory
-from ..settings.config import ConfigError
+from ..settings.config import ConfigError, EnvConfig
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
-from .runner import TaskRunner
+from .distributed import Ranks
+from .policies import build_networks
 
 
 def window_targets(rewards: torch.Tensor, next_values: torch.Tensor, terminated: torch.Tensor, ended: torch.Tensor,
@@ -64,22 +68,33 @@ def check_apg(cfg: TrainConfig):
         raise ConfigError(f"--algorithm apg cannot train {cfg.task} with {'; '.join(named)}")
 
 
-class ApgRunner(TaskRunner):
-    """``TaskRunner`` whose iterations are SHAC's (module docstring) instead of PPO's."""
+class ApgLearner:
+    """SHAC's iterations (module docstring) on ``env`` (``rl.learner.Learner``)."""
 
-    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir=None, eval_env=None):
+    @staticmethod
+    def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
+        """``env_cfg`` with Newton's modules compiled with their adjoints (``sim.gradients``) for every env of the
+        process, the evaluation's too (the option is Newton's, per module: envs built without it would compile them
+        again); ConfigError where the learner cannot train ``cfg`` (``check_apg``) or under torchrun."""
         check_apg(cfg)
-        super().__init__(env, cfg, log_dir, eval_env)
-        self.settings = cfg.agent.apg
+        if ranks.distributed:
+            raise ConfigError("--algorithm apg trains in one process (not under torchrun)")
+        return dataclasses.replace(env_cfg, sim=dataclasses.replace(env_cfg.sim, gradients=True))
+
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
+        check_apg(cfg)
+        self.env, self.episodes, self.device = env, episodes, env.device
+        self.settings = s = cfg.agent.apg
         self.horizon = cfg.agent.num_steps_per_env
         self.rollout = DifferentiableRollout(env.env, self.horizon)
-        self.actor, self.critic = self.alg.actor, self.alg.critic
+        self.actor, self.critic = build_networks(env, rsl_rl_cfg)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
-        s = self.settings
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.actor_learning_rate, betas=ADAM_BETAS)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=s.critic_learning_rate,
                                                  betas=ADAM_BETAS)
-        self.alg.learning_rate = s.actor_learning_rate
+        self.learning_rate = s.actor_learning_rate
+        self.on_step = None
+        """rsl-rl's console's per-step hook: a window has no env steps of its own to report."""
         self.q = self.qd = self.params = None
         n = env.num_envs
         self.episode_length = torch.zeros(n, dtype=torch.long, device=self.device)
@@ -90,6 +105,22 @@ class ApgRunner(TaskRunner):
         self.episode_return = torch.zeros(n, device=self.device)
         self.max_episode_length = int(env.max_episode_length)
         self.has_time_limit = cfg.env.task.has_time_limit
+        self._end_iteration = 1
+
+    def begin(self, first_iteration: int, end_iteration: int):
+        self._end_iteration = end_iteration
+        self.train_mode()
+
+    def train_mode(self):
+        self.actor.train()
+        self.critic.train()
+
+    def eval_mode(self):
+        self.actor.eval()
+        self.critic.eval()
+
+    def release_graphs(self):
+        """Nothing: the rollout's graphs belong to it and stay valid."""
 
     def _observations(self, obs: torch.Tensor) -> TensorDict:
         return TensorDict({"policy": obs}, batch_size=obs.shape[:1], device=obs.device)
@@ -122,16 +153,16 @@ class ApgRunner(TaskRunner):
         self.time_out_count = torch.where(ended, 0, self.time_out_count)
         self.episode_return = torch.where(ended, 0.0, self.episode_return)
 
-    def _iteration(self, obs: TensorDict) -> tuple[TensorDict, dict]:
+    def iteration(self, obs: TensorDict, clock: PhaseClock, it: int) -> tuple[TensorDict, dict]:
         if self.q is None:
             self._starts()
-        self._set_learning_rates()
-        self._clock.mark(0)
+        self._set_learning_rates(it)
+        clock.mark(0)
         window = self.rollout(self.q, self.qd, policy=self._act, params=self.params)
         terminated = window.terminated
         ended = self._ends(terminated)
         alive = (torch.cumsum(ended, 0) - ended.long()) == 0  # the steps that count: up to the episode's end
-        self._clock.mark(1)
+        clock.mark(1)
         actor_loss, next_values = self._actor_step(window, alive, ended, terminated)
         states = window.obs[:-1].detach()
         sound = alive & torch.isfinite(states).all(-1)  # not a diverged env's states
@@ -139,7 +170,7 @@ class ApgRunner(TaskRunner):
         self.actor.update_normalization(seen)  # where the networks normalise their inputs (obs_normalization)
         self.critic.update_normalization(seen)
         critic_loss = self._critic_step(window, sound, ended, terminated, next_values)
-        self._clock.mark(2)
+        clock.mark(2)
         self._carry_on(window, alive, ended, terminated)
         return obs, {"actor": actor_loss, "value_function": critic_loss}
 
@@ -202,30 +233,39 @@ class ApgRunner(TaskRunner):
             self._starts(done)
         self.env.episode_length_buf = self.time_out_count  # the progress line's time into the running episodes
 
-    def _set_learning_rates(self):
-        """The settings' rates (a resumed optimizer keeps its saved ones otherwise), decayed where ``linear_decay``."""
-        left = max(0.0, 1.0 - self.progress.iterations / self._end_iteration) if self.settings.linear_decay else 1.0
+    def _set_learning_rates(self, it: int):
+        """The settings' rates at iteration ``it`` (a resumed optimizer keeps its saved ones otherwise), decayed where
+        ``linear_decay``."""
+        left = max(0.0, 1.0 - it / self._end_iteration) if self.settings.linear_decay else 1.0
         for optimizer, rate in ((self.actor_optimizer, self.settings.actor_learning_rate),
                                 (self.critic_optimizer, self.settings.critic_learning_rate)):
             for group in optimizer.param_groups:
                 group["lr"] = rate * left
-        self.alg.learning_rate = self.settings.actor_learning_rate * left
+        self.learning_rate = self.settings.actor_learning_rate * left
 
     @property
     def action_std(self) -> torch.Tensor:
         return torch.full((self.env.num_actions,), self.settings.action_noise_std, device=self.device)
 
-    def _state_dict(self) -> dict:
-        return super()._state_dict() | {"apg_state_dict": {"actor_optimizer": self.actor_optimizer.state_dict(),
-                                                          "critic_optimizer": self.critic_optimizer.state_dict(),
-                                                          "target_critic": self.target_critic.state_dict()}}
+    def state_dict(self) -> dict:
+        """The networks as rsl-rl's checkpoints hold them, and the learner's optimizers and target critic."""
+        return {"actor_state_dict": self.actor.state_dict(), "critic_state_dict": self.critic.state_dict(),
+                "apg_state_dict": {"actor_optimizer": self.actor_optimizer.state_dict(),
+                                   "critic_optimizer": self.critic_optimizer.state_dict(),
+                                   "target_critic": self.target_critic.state_dict()}}
 
-    def _load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
-        super()._load_state_dict(loaded, load_cfg, strict)
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+        """``state_dict``'s parts (``load_cfg``: rsl-rl's choice, e.g. ``{"actor": True}``; None: all). A checkpoint of
+        another learner, or only some of its networks: the target critic is the critic loaded."""
+        parts = load_cfg if load_cfg is not None else {"actor": True, "critic": True}
+        if parts.get("actor"):
+            self.actor.load_state_dict(loaded["actor_state_dict"], strict=strict)
+        if parts.get("critic"):
+            self.critic.load_state_dict(loaded["critic_state_dict"], strict=strict)
         state = loaded.get("apg_state_dict")
         if load_cfg is None and state is not None:
             self.actor_optimizer.load_state_dict(state["actor_optimizer"])
             self.critic_optimizer.load_state_dict(state["critic_optimizer"])
             self.target_critic.load_state_dict(state["target_critic"])
-        else:  # a checkpoint of another learner, or only some of its networks: the target is the critic loaded
+        else:
             self.target_critic.load_state_dict(self.critic.state_dict())

@@ -69,6 +69,20 @@ SINGLE_PROCESS = Ranks()
 """A process not started by torchrun."""
 
 
+def join_process_group(ranks: Ranks, device: str) -> dict | None:
+    """rsl-rl's ``multi_gpu`` config of this process once it has joined torchrun's NCCL process group on ``device``
+    (what rsl-rl's ``OnPolicyRunner`` does as it starts); None for a process alone."""
+    if not ranks.distributed:
+        return None
+    if device != f"cuda:{ranks.local_rank}":
+        raise ConfigError(f"process {ranks.rank} of a torchrun job trains on cuda:{ranks.local_rank}, not {device}")
+    import torch
+
+    torch.distributed.init_process_group(backend="nccl", rank=ranks.rank, world_size=ranks.world_size)
+    torch.cuda.set_device(ranks.local_rank)
+    return {"global_rank": ranks.rank, "local_rank": ranks.local_rank, "world_size": ranks.world_size}
+
+
 def joint_stop(wanted: str | None, device: str, distributed: bool) -> str | None:
     """The stop decision of all processes from this one's wish (a ``STOP_REASONS`` entry): the strongest wish of any
     process (the all-reduced largest code); a process alone decides by itself, without touching the device."""

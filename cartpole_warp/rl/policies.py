@@ -63,16 +63,25 @@ def networks_must_fit(path: str | Path):
                        f"(e.g. agent.actor.hidden_dims): {str(err).splitlines()[0]}") from None
 
 
-def load_actor(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> torch.nn.Module:
-    """``checkpoint``'s actor in eval mode, built as rsl-rl's PPO builds its actor (its own ``resolve_class`` and
-    ``resolve_obs_groups``) but without the critic, the storage and the optimizer: playing and exporting need no
-    ``OnPolicyRunner``, and a torch optimizer imports ``torch._dynamo`` when it is made."""
-    cfg = to_rsl_rl(agent, images=env.images)
-    actor_class, actor_cfg = resolve_class(cfg["actor"])
+def build_networks(env: RslRlVecEnv, cfg: dict, critic: bool = True) -> tuple[torch.nn.Module, torch.nn.Module | None]:
+    """The actor and (where ``critic``) the critic of rsl-rl's ``train_cfg`` dict ``cfg`` on ``env``'s device, built
+    as rsl-rl's PPO builds them (its own ``resolve_class`` and ``resolve_obs_groups``, the actor first) but without
+    its storage and optimizer."""
     obs = env.get_observations()
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the resolved observation sets
         groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
+    actor_class, actor_cfg = resolve_class(cfg["actor"])
     actor = actor_class(obs, groups, "actor", env.num_actions, **actor_cfg).to(env.device)
+    if not critic:
+        return actor, None
+    critic_class, critic_cfg = resolve_class(cfg["critic"])
+    return actor, critic_class(obs, groups, "critic", 1, **critic_cfg).to(env.device)
+
+
+def load_actor(env: RslRlVecEnv, agent: RunnerConfig, checkpoint: str | Path) -> torch.nn.Module:
+    """``checkpoint``'s actor in eval mode (``build_networks``, without the critic): playing and exporting need no
+    runner or optimizer, and a torch optimizer imports ``torch._dynamo`` when it is made."""
+    actor, _ = build_networks(env, to_rsl_rl(agent, images=env.images), critic=False)
     with networks_must_fit(checkpoint):
         actor.load_state_dict(read_checkpoint(checkpoint, env.device)["actor_state_dict"])
     return actor.eval()

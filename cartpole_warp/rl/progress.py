@@ -1,11 +1,22 @@
-"""What a training run reports after each iteration: its console line (``ProgressLine``), its metrics
-(``metrics``: tensorboard's or wandb's scalars) and the time it has left (``eta_s``)."""
+"""What a training run reports after each iteration (``Report``): its console line (``ProgressLine``), its metrics
+(``metrics``: tensorboard's or wandb's scalars, through rsl-rl's ``Logger``) and the time it has left (``eta_s``)."""
 
 from __future__ import annotations
+
+from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
+import dataclasses
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from rsl_rl.utils.logger import Logger
 
 from ..evaluation.statistics import EpisodeSummary
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
+from .distributed import Ranks
 
 LONG_RUN_S = 3600.0
 """A run whose first iteration foretells more than this says so, with what makes it shorter."""
@@ -45,6 +56,16 @@ def metrics(stats: EpisodeSummary, evaluation: EpisodeSummary | None, loss_dict:
                         ("mean_reward_per_step", "time_limit_fraction", "full_reward_per_step", "mean_return")
                         if getattr(evaluation, name) is not None})
     return scalars
+
+
+def run_eta_s(progress, start_s: float, span: tuple[int, int, int], evaluations) -> float:
+    """``eta_s`` of a run (``runs.Progress``, started at ``perf_counter`` ``start_s``) after iteration ``it`` of
+    ``span`` (first, it, end: exclusive); the evaluations due are the periodic ones of ``evaluations``
+    (``rl.evaluations.Evaluations``: ``eval.max_interval``)."""
+    first, it, end = span
+    measured = [h["evaluation"]["seconds"] for h in progress.history if h["iteration"] >= first and "evaluation" in h]
+    due = (end - 1 - evaluations.last_iteration) // evaluations.limits.max_interval if evaluations.enabled else 0
+    return eta_s(time.perf_counter() - start_s, measured, it + 1 - first, end - it - 1, due)
 
 
 class ProgressLine:
@@ -91,3 +112,66 @@ class ProgressLine:
         return (f"note: at this pace the {iterations} iterations of {self.cfg.task} take about "
                 f"{format_duration(eta)} more on {self.device} ({self.cfg.env.num_envs} envs): a GPU (--device cuda) "
                 "is far faster (docs/results.md: each task's measured times), or set fewer --max-iterations")
+
+
+def in_git_repository(path: str) -> bool:
+    """Whether ``path`` lies in a git checkout (rsl-rl stores the code state of those, and prints a line for each
+    other, e.g. an installed rsl_rl)."""
+    return any((parent / ".git").exists() for parent in Path(path).resolve().parents)
+
+
+@dataclass
+class Pace:
+    """One iteration's speed: env steps per second and the seconds of collection and of learning (device time)."""
+
+    steps_per_s: float
+    collect_s: float
+    learn_s: float
+
+
+def history_entry(progress, it: int, stats: EpisodeSummary, pace: Pace, judged, evaluation_s: float,
+                  solved: bool) -> dict:
+    """Iteration ``it``'s entry of ``progress.history`` (``runs.Progress``): the training episodes, speed, whether
+    solved, and the evaluation's verdict (``rl.evaluations.Judged``) where one came, with its seconds."""
+    entry = {"iteration": it, "env_steps": progress.env_steps, "train_time_s": round(progress.train_time_s, 3),
+             **dataclasses.asdict(stats), "env_steps_per_s": pace.steps_per_s, "collection_ms": pace.collect_s * 1e3,
+             "learning_ms": pace.learn_s * 1e3, "solved": solved}
+    if judged is not None:
+        entry["evaluation"] = dataclasses.asdict(judged.summary) | {"seconds": round(evaluation_s, 3)}
+        if judged.iteration != it:
+            entry["evaluation"]["policy_iteration"] = judged.iteration
+    return entry
+
+
+class Report:
+    """Where each iteration of a run of ``cfg`` on ``env`` is reported: rsl-rl's ``logger`` (its own console with
+    ``console: rsl_rl``, else its metrics writer: TensorBoard, wandb or none, in ``log_dir``; None writes nothing) and,
+    on the process that writes, the console line."""
+
+    def __init__(self, cfg: TrainConfig, env: RslRlVecEnv, rsl_rl_cfg: dict, log_dir: Path | None, ranks: Ranks):
+        self.logger = Logger(str(log_dir) if log_dir is not None else None, rsl_rl_cfg, env.cfg, env.num_envs,
+                             ranks.distributed, ranks.world_size, ranks.rank, env.device)
+        self.logger.git_status_repos = [path for path in (*self.logger.git_status_repos, __file__)
+                                        if in_git_repository(path)]
+        self.line = ProgressLine(cfg, env, env.device)
+        self.rsl_rl_console, self.writes = cfg.console == "rsl_rl", ranks.writes
+
+    def __call__(self, span: tuple[int, int, int], stats: EpisodeSummary, losses: dict, learning_rate: float,
+                 action_std, pace: Pace, verdict: tuple[EpisodeSummary, int, bool] | None, eta: float):
+        """Report iteration ``it`` of ``span`` (first, it, end: exclusive); ``verdict``: an evaluation's summary, the
+        iteration of the policy it judged and whether it is solved."""
+        first, it, end = span
+        if self.rsl_rl_console:
+            self.logger.log(it=it, start_it=first, total_it=end, collect_time=pace.collect_s,
+                            learn_time=pace.learn_s, loss_dict=losses, learning_rate=learning_rate,
+                            action_std=action_std, rnd_weight=None)
+            return
+        if not self.writes:
+            return
+        evaluation, judged_iteration, solved = verdict if verdict is not None else (None, None, False)
+        if self.logger.writer is not None:
+            scalars = metrics(stats, evaluation, losses, learning_rate, action_std.mean().item(), pace.steps_per_s,
+                              pace.collect_s, pace.learn_s)
+            for tag, value in scalars.items():  # an evaluation at the iteration of the policy it judged
+                self.logger.writer.add_scalar(tag, value, judged_iteration if tag.startswith("Eval/") else it)
+        print(self.line(it, first, end, stats, pace.steps_per_s, evaluation, solved, eta, judged_iteration), flush=True)

@@ -152,6 +152,17 @@ class Progress:
     """One entry per iteration: the training episodes' means, env steps, time, solved, and the evaluation's means
     ('evaluation') where a verdict came (with 'policy_iteration' where it judged an earlier iteration's policy)."""
 
+    @classmethod
+    def from_infos(cls, infos: dict) -> Progress:
+        """The progress a checkpoint's ``infos`` holds."""
+        return cls(**{f.name: infos[f.name] for f in dataclasses.fields(cls) if f.name in infos})
+
+    def as_of(self, iteration: int) -> dict:
+        """The progress as it stood after ``iteration`` (a checkpoint's ``infos``), with the verdicts since."""
+        history = [h for h in self.history if h["iteration"] <= iteration]
+        return dict(dataclasses.asdict(self), iterations=iteration + 1, env_steps=history[-1]["env_steps"],
+                    train_time_s=history[-1]["train_time_s"], history=history)
+
 
 @dataclass
 class RunSummary:

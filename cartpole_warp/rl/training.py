@@ -23,6 +23,7 @@ from ..settings.config import ConfigError
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
+from .learner import learner_class
 from .runner import TaskRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
 
@@ -89,17 +90,8 @@ class Training:
             raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
         self.run_dir, self.ranks = Path(run_dir), ranks
         start = time.perf_counter()
-        env_cfg = ranks.env_config(cfg.env, torch.cuda.device_count())
-        apg = cfg.agent.learner == "apg"
-        if apg:
-            from .apg import check_apg
-
-            check_apg(cfg)
-            if ranks.distributed:
-                raise ConfigError("--algorithm apg trains in one process (not under torchrun)")
-            # Newton's modules with their adjoints for every env of the process (the evaluation's too): the option
-            # is Newton's, per module, so envs built without it would compile them again
-            env_cfg = dataclasses.replace(env_cfg, sim=dataclasses.replace(env_cfg.sim, gradients=True))
+        env_cfg = learner_class(cfg.agent.learner).env_config(cfg, ranks.env_config(cfg.env, torch.cuda.device_count()),
+                                                              ranks)
         check_memory(cfg, resolve_device(env_cfg.device))
         torch.manual_seed(env_cfg.seed)
         cfg.apply_torch_threads()
@@ -118,13 +110,10 @@ class Training:
                 self.eval_env = self.task.env_class(dataclasses.replace(env_cfg, num_envs=cfg.eval.num_envs,
                                                                         seed=cfg.env.seed))
         with timed(self.timing_s, "networks"):
-            runner_class = TaskRunner
-            if apg:
-                from .apg import ApgRunner as runner_class
-            self.runner = runner_class(self.env, dataclasses.replace(cfg, env=env_cfg),
-                                       self.run_dir if ranks.writes else None, self.eval_env)
+            self.runner = TaskRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
+                                     self.run_dir if ranks.writes else None, self.eval_env)
         with timed(self.timing_s, "eval_env"):
-            self.runner.prepare_evaluation()
+            self.runner.evaluations.prepare()
             if resume_from is not None:
                 self.runner.load(str(resume_from))
             if ranks.writes:

@@ -36,11 +36,11 @@ class TrainingVideo:
         if (it - self.first_iteration) % self.interval:
             return
         recorder = Recorder.of_env(self.env, self.out_dir, policy_view=False, name=f"iteration_{it + 1}", usd=False)
-        self.runner.alg.eval_mode()
+        self.runner.learner.eval_mode()
         try:
             FirstEpisodesRun(self.env, self.runner.policy(), capture=False)(self.length, recorder, seed=self.seed)
         finally:
-            self.runner.alg.train_mode()
+            self.runner.learner.train_mode()
         clip = recorder.close()[-1]
         self.written.append(clip)
         writer = self.runner.logger.writer

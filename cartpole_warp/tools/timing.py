@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg.apply_torch_threads()
     env = RslRlVecEnv(cfg.task_spec.env_class(cfg.env))
     runner = TaskRunner(env, cfg, None)
-    device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.alg
+    device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.learner.alg
     runner.learn(3)
     obs = env.get_observations()
 
@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     def rollout():
         nonlocal obs
         with torch.inference_mode():
-            obs = runner._collect(obs)
+            obs = runner.learner._collect(obs)
 
     zeros = torch.zeros(env.num_envs, 1, device=device)
     rows = {"env.step alone": timed_ms(lambda: env.step(zeros), device, 50)}

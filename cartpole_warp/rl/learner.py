@@ -1,0 +1,75 @@
+"""The seam between the training loop and what learns: a ``Learner`` runs one iteration (act, step, learn) on the
+env, holds the state a checkpoint keeps, and names the policy an evaluation judges; ``learner_class`` finds one by
+its name (``agent.learner``: ``train.py --algorithm NAME``).
+
+    learner = learner_class(cfg.agent.learner)(env, cfg, rsl_rl_cfg, episodes)
+    obs, losses = learner.iteration(obs, clock, it)
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    import torch
+    from tensordict import TensorDict
+
+    from ..engine.streams import PhaseClock
+    from ..settings.config import EnvConfig
+    from ..wrappers.rsl_rl import RslRlVecEnv
+    from .config import TrainConfig
+    from .distributed import Ranks
+
+LEARNERS = {"ppo": "cartpole_warp.rl.ppo_learner:PpoLearner", "apg": "cartpole_warp.rl.apg:ApgLearner"}
+"""Each learner's class by name, imported when asked for (the backpropagation learner imports the differentiable
+rollout, which a PPO run need not load)."""
+
+
+class Learner(Protocol):
+    """What the runner (``TaskRunner``) asks of a learner. Built as ``Learner(env, cfg, rsl_rl_cfg, episodes)``: the
+    training's env, its config, rsl-rl's ``train_cfg`` dict of it (``policies.to_rsl_rl``, with ``multi_gpu``) and the
+    ``EpisodeStats`` it adds each ended episode to."""
+
+    env: RslRlVecEnv
+    actor: torch.nn.Module
+    """The policy an evaluation judges and the exports hold (rsl-rl's ``MLPModel``: its mean when in eval mode)."""
+
+    @staticmethod
+    def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
+        """The env this learner trains on, for ``cfg`` (ConfigError, before anything is built, where it cannot)."""
+
+    def begin(self, first_iteration: int, end_iteration: int) -> None:
+        """Called as ``learn`` starts iterations ``first_iteration`` to ``end_iteration`` (exclusive)."""
+
+    def iteration(self, obs: TensorDict, clock: PhaseClock, it: int) -> tuple[TensorDict, dict]:
+        """Iteration ``it``: collect experience (``clock.mark(0)`` before, ``mark(1)`` after) and learn from it
+        (``mark(2)`` after); the env's last observations and the losses out."""
+
+    @property
+    def learning_rate(self) -> float: ...
+
+    @property
+    def action_std(self) -> torch.Tensor:
+        """The training actions' standard deviation, per action."""
+
+    def train_mode(self) -> None: ...
+
+    def eval_mode(self) -> None: ...
+
+    def state_dict(self) -> dict:
+        """What a checkpoint holds besides the iteration and the progress (``actor_state_dict`` among it)."""
+
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool) -> None:
+        """Load ``state_dict``'s parts (``load_cfg``: rsl-rl's choice of parts, e.g. ``{"actor": True}``; None: all)."""
+
+    def release_graphs(self) -> None:
+        """Free captured CUDA graphs (before the process group is destroyed); the next iteration captures again."""
+
+
+def learner_class(name: str) -> type[Learner]:
+    """The learner named ``name`` (a key of ``LEARNERS``)."""
+    if name not in LEARNERS:
+        raise KeyError(f"no learner {name!r}; the learners: {', '.join(LEARNERS)}")
+    module, _, attribute = LEARNERS[name].partition(":")
+    return getattr(importlib.import_module(module), attribute)
