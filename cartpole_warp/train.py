@@ -8,9 +8,8 @@
     python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help-all lists them all
     torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096   # 2 GPUs, 4096 envs on each
 
-Each run folder holds config.yaml, model_<iteration>.pt, TensorBoard events, exported/policy.{onnx,pt},
-learning_curve.png and summary.json. Ctrl-C stops after the current iteration and saves.
-Also installed as ``python -m cartpole_warp.train``.
+Each run folder holds config.yaml, model_<iteration>.pt, TensorBoard events, exported/policy.{onnx,pt}, the curve and
+summary.json. Ctrl-C stops after the current iteration and saves. Also installed as ``python -m cartpole_warp.train``.
 """
 
 from __future__ import annotations
@@ -48,6 +47,17 @@ from .settings.presets import presets
 
 
 @dataclass
+class PopulationArgs:
+    seeds: list[int] = field(default_factory=list)
+    """A population: one run per seed, at once (docs/training.md). Its members share one env
+    of members x num_envs envs and one batched PPO; each writes an ordinary run folder under the population's."""
+    vary: list[str] = field(default_factory=list)
+    """--seeds: settings the members differ in, name=value1,value2: one member per combination and seed (PPO's
+    learning-rate, entropy-coef, gamma, lam, clip-param, desired-kl, value-loss-coef, max-grad-norm), e.g.
+    agent.algorithm.learning-rate=1e-3,3e-4."""
+
+
+@dataclass
 class TrainArgs(Generic[TaskT]):
     cfg: Annotated[TrainConfig[TaskT], tyro.conf.arg(name="")]
     config: Annotated[str | None, tyro.conf.arg(help=(
@@ -73,6 +83,7 @@ class TrainArgs(Generic[TaskT]):
     """--video: env steps per clip."""
     video_interval: int = 50
     """--video: iterations between clips."""
+    population: Annotated[PopulationArgs, tyro.conf.arg(name="population")] = field(default_factory=PopulationArgs)
 
 
 class IterationHooks(list):
@@ -88,7 +99,8 @@ class IterationHooks(list):
 
 
 ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-name": "--agent.run-name",
-                         "--logger": "--agent.logger", "--algorithm": "--agent.learner"}
+                         "--logger": "--agent.logger", "--algorithm": "--agent.learner",
+                         "--seeds": "--population.seeds"}
 """train.py's short flags."""
 
 
@@ -161,6 +173,8 @@ def main(argv: list[str] | None = None) -> int:
         with timed(timing_s, "config"):
             ranks = Ranks.from_environment()
             cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
+        if args.population.seeds or args.population.vary:
+            return train_population(cfg, run_dir, checkpoint, args, timing_s)
         if args.viewer == "viser":
             check_browser_viewer(args)
         with timed(timing_s, "imports"):
@@ -195,6 +209,33 @@ def main(argv: list[str] | None = None) -> int:
         phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
         print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
     return 130 if summary.status == "interrupted" else 0
+
+
+def train_population(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainArgs,
+                     timing_s: dict[str, float]) -> int:
+    """``--seeds``: the population's run in ``run_dir`` (``rl.population_training``); 130 where interrupted."""
+    require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
+    require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")
+    with timed(timing_s, "imports"):
+        import torch
+
+        from .rl.population import members_of
+        from .rl.population_training import MEMBERS_FILE, PopulationTraining
+        from .rl.training import solved_definition
+
+    if cfg.env.device != "cpu" and not torch.cuda.is_available():
+        raise ConfigError(NO_CUDA.format(cfg.env.device))
+    members = members_of(args.population.seeds, args.population.vary)
+    print(f"building {len(members)} members x {cfg.env.num_envs} envs on {cfg.env.device}...", flush=True)
+    training = PopulationTraining(cfg, members, run_dir, timing_s)
+    print(f"population folder: {run_dir}; ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
+          f"{solved_definition(cfg)}", flush=True)
+    result = training.run()
+    print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "
+          f"trained {result['env_steps']:,} env steps in {result['train_time_s']:.1f} s "
+          f"({result['env_steps_per_s']:,} steps/s)\nwatch one: python play.py --headless --run "
+          f"{run_dir / members[0].name}")
+    return 130 if training.interrupted else 0
 
 
 def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):

@@ -112,3 +112,23 @@ def test_a_run_that_will_take_hours_says_so_after_its_first_iteration(capsys):
     assert re.fullmatch(r"note: at this pace the 10000000 iterations of cartpole-balance take about \d+h\d\dm more on "
                         r"cpu \(16 envs\): a GPU \(--device cuda\) is far faster \(docs/results.md: each task's "
                         r"measured times\), or set fewer --max-iterations", note), out
+
+
+def test_the_runner_is_one_loop_over_learners_found_by_name():
+    """The seam: the runner module stays at most 200 lines, nothing subclasses the runner to change the learning, and
+    a learner is found by its name alone (train.py --algorithm NAME)."""
+    import ast
+    from pathlib import Path
+
+    from cartpole_warp.rl import runner
+    from cartpole_warp.rl.learner import LEARNERS, learner_class
+
+    assert len(Path(runner.__file__).read_text().splitlines()) <= 200
+    package = Path(runner.__file__).parent.parent
+    subclasses = [path.name for path in package.rglob("*.py") for node in ast.walk(ast.parse(path.read_text()))
+                  if isinstance(node, ast.ClassDef) and any(getattr(base, "id", None) == "TaskRunner"
+                                                            for base in node.bases)]
+    assert subclasses == []
+    assert {name: learner_class(name).__name__ for name in LEARNERS} == {"ppo": "PpoLearner", "apg": "ApgLearner"}
+    with pytest.raises(KeyError, match="no learner 'sac'; the learners: ppo, apg"):
+        learner_class("sac")

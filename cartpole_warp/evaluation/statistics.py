@@ -36,15 +36,22 @@ class EpisodeSummary:
 
 class EpisodeStats:
     """Sums over finished episodes, kept on the device: ``add`` never waits for the device, ``pop`` reads once.
-    An episode is full when it ran ``max_episode_length`` steps."""
+    An episode is full when it ran ``max_episode_length`` steps. With ``groups`` the envs are that many equal blocks
+    (a population's members), each summed apart (``group``)."""
 
-    def __init__(self, device: str | torch.device, max_episode_length: int):
+    def __init__(self, device: str | torch.device, max_episode_length: int, groups: int = 1):
         import torch
 
         self.max_episode_length = max_episode_length
-        self._sums = torch.zeros(7, dtype=torch.float64, device=device)
-        """episodes, returns, lengths, rewards per step, episodes that reached the time limit, full episodes, their
-        rewards per step."""
+        self._sums = torch.zeros(groups, 7, dtype=torch.float64, device=device)
+        """Per group: episodes, returns, lengths, rewards per step, episodes that reached the time limit, full
+        episodes, their rewards per step."""
+
+    def group(self, k: int) -> EpisodeStats:
+        """Group ``k``'s statistics: its ``pop`` reads and clears its sums alone (the same tensor's row)."""
+        view = EpisodeStats.__new__(EpisodeStats)
+        view.max_episode_length, view._sums = self.max_episode_length, self._sums[k:k + 1]
+        return view
 
     def add(self, ended: torch.Tensor, returns: torch.Tensor, lengths: torch.Tensor, timed_out: torch.Tensor):
         """Count the episodes where ``ended`` (N,) bool: their returns, lengths (env steps) and whether they reached
@@ -56,11 +63,11 @@ class EpisodeStats:
         full = (lengths >= self.max_episode_length).to(torch.float64)
         values = torch.stack((torch.ones_like(returns), returns, lengths, per_step, timed_out.to(torch.float64), full,
                               full * per_step))
-        self._sums += torch.where(ended, values, 0.0).sum(dim=1)
+        self._sums += torch.where(ended, values, 0.0).view(7, len(self._sums), -1).sum(dim=2).T
 
     def summary(self) -> EpisodeSummary:
-        """Means over the episodes counted so far (one read from the device)."""
-        count, returns, lengths, per_step, timed_out, full, full_per_step = self._sums.tolist()
+        """Means over the episodes counted so far, every group's (one read from the device)."""
+        count, returns, lengths, per_step, timed_out, full, full_per_step = self._sums.sum(dim=0).tolist()
         if count == 0:
             return EpisodeSummary(0, None, None, None, None)
         return EpisodeSummary(int(count), returns / count, lengths / count, per_step / count, timed_out / count,

@@ -84,6 +84,7 @@ class ApgLearner:
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
         check_apg(cfg)
         self.env, self.episodes, self.device = env, episodes, env.device
+        self.clock = PhaseClock(self.device, phases=2)
         self.settings = s = cfg.agent.apg
         self.horizon = cfg.agent.num_steps_per_env
         self.rollout = DifferentiableRollout(env.env, self.horizon)
@@ -153,16 +154,16 @@ class ApgLearner:
         self.time_out_count = torch.where(ended, 0, self.time_out_count)
         self.episode_return = torch.where(ended, 0.0, self.episode_return)
 
-    def iteration(self, obs: TensorDict, clock: PhaseClock, it: int) -> tuple[TensorDict, dict]:
+    def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
         if self.q is None:
             self._starts()
         self._set_learning_rates(it)
-        clock.mark(0)
+        self.clock.mark(0)
         window = self.rollout(self.q, self.qd, policy=self._act, params=self.params)
         terminated = window.terminated
         ended = self._ends(terminated)
         alive = (torch.cumsum(ended, 0) - ended.long()) == 0  # the steps that count: up to the episode's end
-        clock.mark(1)
+        self.clock.mark(1)
         actor_loss, next_values = self._actor_step(window, alive, ended, terminated)
         states = window.obs[:-1].detach()
         sound = alive & torch.isfinite(states).all(-1)  # not a diverged env's states
@@ -170,7 +171,7 @@ class ApgLearner:
         self.actor.update_normalization(seen)  # where the networks normalise their inputs (obs_normalization)
         self.critic.update_normalization(seen)
         critic_loss = self._critic_step(window, sound, ended, terminated, next_values)
-        clock.mark(2)
+        self.clock.mark(2)
         self._carry_on(window, alive, ended, terminated)
         return obs, {"actor": actor_loss, "value_function": critic_loss}
 

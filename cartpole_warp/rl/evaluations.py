@@ -120,11 +120,17 @@ class Evaluations:
             self.in_step.begin(self.learner.actor, it, env_steps, self.learner.state_dict())
         return judged
 
-    def keep_if_best(self, judged: Judged, solved: bool, progress: Progress, run_dir: Path | None,
-                     write: Callable[[Path, dict, int, dict], None]):
-        """Record the judged policy as the best where its evaluation beats the best so far (solved first, then the
-        play metric), and ``write`` it as ``model_best.pt`` in ``run_dir`` (with the progress as it stood after its
-        iteration, so that a resume from it continues there)."""
+    def record(self, judged: Judged, solved: bool, progress: Progress, run_dir: Path | None,
+               write: Callable[[Path, dict, int, dict], None]):
+        """Enter a verdict in ``progress``: the first solved one as ``solved_at`` (the judged policy's iterations and
+        env steps, the training seconds until the verdict); the best so far (solved first, then the play metric) as
+        ``best``, its policy written (``write``) as ``model_best.pt`` in ``run_dir`` with the progress as it stood
+        after its iteration, so that a resume from it continues there."""
+        metric = self.play_metric
+        if solved and progress.solved_at is None:
+            progress.solved_at = {"iterations": judged.iteration + 1, "env_steps": judged.env_steps,
+                                  "train_time_s": round(progress.train_time_s, 3),
+                                  metric: getattr(judged.summary, metric)}
         score = (solved, getattr(judged.summary, self.play_metric) or 0.0)
         best = progress.best
         if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):

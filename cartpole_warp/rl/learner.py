@@ -2,8 +2,8 @@
 env, holds the state a checkpoint keeps, and names the policy an evaluation judges; ``learner_class`` finds one by
 its name (``agent.learner``: ``train.py --algorithm NAME``).
 
-    learner = learner_class(cfg.agent.learner)(env, cfg, rsl_rl_cfg, episodes)
-    obs, losses = learner.iteration(obs, clock, it)
+    learner = learner_class(cfg.agent.learner)(env, cfg, rsl_rl_cfg, EpisodeStats(env.device, max_episode_length))
+    obs, losses = learner.iteration(obs, it)
 """
 
 from __future__ import annotations
@@ -12,10 +12,13 @@ import importlib
 from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import torch
     from tensordict import TensorDict
 
     from ..engine.streams import PhaseClock
+    from ..evaluation.statistics import EpisodeStats
     from ..settings.config import EnvConfig
     from ..wrappers.rsl_rl import RslRlVecEnv
     from .config import TrainConfig
@@ -32,8 +35,14 @@ class Learner(Protocol):
     ``EpisodeStats`` it adds each ended episode to."""
 
     env: RslRlVecEnv
+    episodes: EpisodeStats
     actor: torch.nn.Module
     """The policy an evaluation judges and the exports hold (rsl-rl's ``MLPModel``: its mean when in eval mode)."""
+    clock: PhaseClock
+    """The seconds of each iteration's collection and learning (its phases 0 and 1)."""
+    on_step: Callable[[torch.Tensor, torch.Tensor, dict], None] | None
+    """Called with each env step's rewards, dones and extras where the learner steps the env one step at a time
+    (rsl-rl's console: its logger's ``process_env_step``)."""
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
@@ -42,7 +51,7 @@ class Learner(Protocol):
     def begin(self, first_iteration: int, end_iteration: int) -> None:
         """Called as ``learn`` starts iterations ``first_iteration`` to ``end_iteration`` (exclusive)."""
 
-    def iteration(self, obs: TensorDict, clock: PhaseClock, it: int) -> tuple[TensorDict, dict]:
+    def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
         """Iteration ``it``: collect experience (``clock.mark(0)`` before, ``mark(1)`` after) and learn from it
         (``mark(2)`` after); the env's last observations and the losses out."""
 
@@ -55,7 +64,8 @@ class Learner(Protocol):
 
     def train_mode(self) -> None: ...
 
-    def eval_mode(self) -> None: ...
+    def eval_mode(self) -> None:
+        """``actor`` as the learner stands now, in eval mode (an evaluation, a checkpoint or an export follows)."""
 
     def state_dict(self) -> dict:
         """What a checkpoint holds besides the iteration and the progress (``actor_state_dict`` among it)."""

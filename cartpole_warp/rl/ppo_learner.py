@@ -37,6 +37,7 @@ class PpoLearner:
         if cfg.agent.torch_compile_mode is not None:
             mark_for_compile()
         self.env, self.episodes, self.device = env, episodes, env.device
+        self.clock = PhaseClock(self.device, phases=2)
         self.num_steps_per_env = rsl_rl_cfg["num_steps_per_env"]
         alg_class = resolve_callable(rsl_rl_cfg["algorithm"]["class_name"])
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints its resolved observation sets and models
@@ -74,13 +75,13 @@ class PpoLearner:
         if self.distributed:
             self.alg.broadcast_parameters()
 
-    def iteration(self, obs: TensorDict, clock: PhaseClock, it: int) -> tuple[TensorDict, dict]:
-        clock.mark(0)
+    def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
+        self.clock.mark(0)
         with torch.inference_mode():
             obs = self._collect(obs)
-        clock.mark(1)
+        self.clock.mark(1)
         losses = self.alg.update()
-        clock.mark(2)
+        self.clock.mark(2)
         return obs, losses
 
     def _rollout(self, obs: TensorDict) -> TensorDict:

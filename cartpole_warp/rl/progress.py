@@ -155,6 +155,8 @@ class Report:
                                         if in_git_repository(path)]
         self.line = ProgressLine(cfg, env, env.device)
         self.rsl_rl_console, self.writes = cfg.console == "rsl_rl", ranks.writes
+        self.console = True
+        """Print the console line (a population prints its own)."""
 
     def __call__(self, span: tuple[int, int, int], stats: EpisodeSummary, losses: dict, learning_rate: float,
                  action_std, pace: Pace, verdict: tuple[EpisodeSummary, int, bool] | None, eta: float):
@@ -174,4 +176,6 @@ class Report:
                               pace.collect_s, pace.learn_s)
             for tag, value in scalars.items():  # an evaluation at the iteration of the policy it judged
                 self.logger.writer.add_scalar(tag, value, judged_iteration if tag.startswith("Eval/") else it)
-        print(self.line(it, first, end, stats, pace.steps_per_s, evaluation, solved, eta, judged_iteration), flush=True)
+        if self.console:
+            print(self.line(it, first, end, stats, pace.steps_per_s, evaluation, solved, eta, judged_iteration),
+                  flush=True)

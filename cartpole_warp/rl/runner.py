@@ -3,10 +3,8 @@
     runner = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(cfg.env)), cfg, log_dir)
     runner.learn(cfg.agent.max_iterations)     # runner.request_stop() ends it after the current iteration
 
-Each iteration the learner acts, steps the env and learns (``Learner.iteration``); then the runner sums the episode
-statistics on the device, advances the progress, asks the evaluations (``rl.evaluations``) for a verdict, writes the
-metrics with rsl-rl's ``Logger`` and one console line, and takes stop requests. Checkpoints are rsl-rl's (the
-learner's state, ``iter``, ``infos``: the progress), written atomically.
+After each of the learner's iterations (act, step, learn): episode statistics, progress, the evaluations' verdict
+(``rl.evaluations``), metrics and console line (``rl.progress.Report``), stop requests, checkpoints (rsl-rl's).
 """
 
 from __future__ import annotations
@@ -22,9 +20,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import torch
+from tensordict import TensorDict
 
 from ..engine.env import BatchedEnv
-from ..engine.streams import PhaseClock
 from ..evaluation.rollouts import Policy
 from ..evaluation.statistics import EpisodeStats, EpisodeSummary
 from ..settings.deprecation import moved_names, renamed
@@ -33,34 +31,35 @@ from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import Ranks, join_process_group, joint_stop
 from .evaluations import Evaluations
-from .learner import learner_class
+from .learner import Learner, learner_class
 from .policies import deterministic, export_policy, networks_must_fit, read_checkpoint, to_rsl_rl
 from .progress import Pace, Report, history_entry, run_eta_s
 from .runs import Progress
 
 
 class TaskRunner:
-    """The loop of one training run of ``cfg`` on ``env`` by the learner ``cfg.agent.learner``; ``log_dir`` None writes
-    nothing (no metrics, no checkpoints). Evaluations (``Evaluations``) run on ``eval_env`` or, where ``env`` carries
-    an ``InStepEvaluation`` (``eval.in_step``), inside the training's step. ``cfg`` is rsl-rl's ``train_cfg`` dict."""
+    """The loop of one training run of ``cfg`` on ``env`` by ``learner`` (default: ``cfg.agent.learner``'s, built here);
+    ``log_dir`` None writes nothing (no metrics, no checkpoints). Evaluations (``Evaluations``) run on ``eval_env`` or,
+    where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``), inside the training's step. ``cfg`` is rsl-rl's
+    ``train_cfg`` dict."""
 
-    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None):
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None,
+                 learner: Learner | None = None):
         self.env, self.train_cfg, self.device, self.ranks = env, cfg, env.device, Ranks.from_environment()
         self.cfg = to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images)
-        self.cfg["multi_gpu"] = join_process_group(self.ranks, self.device)
-        self.episodes = EpisodeStats(env.device, env.max_episode_length)
-        self.learner = learner_class(cfg.agent.learner)(env, cfg, self.cfg, self.episodes)
-        self.evaluations = Evaluations(cfg, self.learner, eval_env, env.evaluation)
+        if learner is None:
+            self.cfg["multi_gpu"] = join_process_group(self.ranks, self.device)
+            learner = learner_class(cfg.agent.learner)(env, cfg, self.cfg,
+                                                       EpisodeStats(env.device, env.max_episode_length))
+        self.learner, self.episodes = learner, learner.episodes
+        self.in_step = env.evaluation  # the evaluation inside the training's step (None: on eval_env, if any)
+        self.evaluations = Evaluations(cfg, self.learner, eval_env, self.in_step)
         self.report = Report(cfg, env, self.cfg, log_dir, self.ranks)
-        self.logger = self.report.logger
+        self.logger = self.report.logger  # rsl-rl's, with the metrics writer
         if cfg.console == "rsl_rl":
             self.learner.on_step = self.logger.process_env_step
-        self.current_learning_iteration = 0
-        self.progress = Progress()
-        self.stop_reason: str | None = None
-        self._stop_requested: str | None = None
-        self._clock = PhaseClock(self.device, phases=2)
-        """Collection and learning time of each iteration, on the device."""
+        self.current_learning_iteration, self.progress = 0, Progress()
+        self.stop_reason = self._stop_requested = None  # str | None: why learn stops, and a stop request's reason
         self.on_iteration: Callable[[int, EpisodeSummary], None] | None = None
         """Called after each iteration's console line (rank 0) with the iteration and its episodes' summary (the
         browser viewer's hook)."""
@@ -69,11 +68,6 @@ class TaskRunner:
     def alg(self):
         """rsl-rl's algorithm object of the PPO learner (AttributeError for a learner without one)."""
         return self.learner.alg
-
-    @property
-    def in_step(self):
-        """The evaluation inside the training's step (None: evaluations run on envs of their own, if any)."""
-        return self.env.evaluation
 
     @property
     def run_dir(self) -> Path | None:
@@ -93,10 +87,19 @@ class TaskRunner:
         """``num_learning_iterations`` iterations, ending early on a stop request or, with ``stop_when_solved``, once
         solved. Non-finite states never reach the learner (the env resets them), so there is no per-step NaN check;
         episode statistics stay on the device until the iteration ends."""
+        obs = self.start(num_learning_iterations, init_at_random_ep_len)
+        for it in range(self._first_iteration, self._end_iteration):
+            obs, losses = self.learner.iteration(obs, it)
+            if self.after_iteration(it, losses):
+                break
+        self.finish()
+
+    def start(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> TensorDict:
+        """``learn``'s start (a loop that drives the learner itself calls it, ``after_iteration`` and ``finish``): the
+        env's observations out."""
         if init_at_random_ep_len:
             self.env.episode_length_buf = torch.randint_like(self.env.episode_length_buf,
                                                              high=int(self.env.max_episode_length))
-        obs = self.env.get_observations().to(self.device)
         self._first_iteration = self.current_learning_iteration
         self._end_iteration = self._first_iteration + num_learning_iterations
         self.learner.begin(self._first_iteration, self._end_iteration)
@@ -104,14 +107,18 @@ class TaskRunner:
             self.logger.init_logging_writer()
         self.evaluations.last_iteration = self._first_iteration - 1
         self._start = self._tick = time.perf_counter()
-        for it in range(self._first_iteration, self._end_iteration):
-            obs, losses = self.learner.iteration(obs, self._clock, it)
-            self.current_learning_iteration = it
-            self._end_of_iteration(it, losses)
-            if self.stop_reason is not None:
-                break
-            if self.run_dir is not None and it % self.cfg["save_interval"] == 0:
-                self.save(str(self.run_dir / f"model_{it}.pt"))
+        return self.env.get_observations().to(self.device)
+
+    def after_iteration(self, it: int, losses: dict) -> bool:
+        """The runner's part of iteration ``it`` (whose ``losses`` the learner gave); whether training stops."""
+        self.current_learning_iteration = it
+        self._end_of_iteration(it, losses)
+        if self.stop_reason is None and self.run_dir is not None and it % self.cfg["save_interval"] == 0:
+            self.save(str(self.run_dir / f"model_{it}.pt"))
+        return self.stop_reason is not None
+
+    def finish(self):
+        """The last checkpoint; the metrics writer closed."""
         if self.run_dir is not None:
             self.save(str(self.run_dir / f"model_{self.current_learning_iteration}.pt"))
             self.logger.stop_logging_writer()
@@ -121,7 +128,7 @@ class TaskRunner:
         stats = self.episodes.pop(all_processes=self.ranks.distributed)
         now = time.perf_counter()
         steps = self.env.num_envs * self.cfg["num_steps_per_env"] * self.ranks.world_size
-        pace = Pace(steps / (now - self._tick), *self._clock.seconds())
+        pace = Pace(steps / (now - self._tick), *self.learner.clock.seconds())
         p = self.progress
         p.iterations, p.env_steps = it + 1, p.env_steps + steps
         judged = self.evaluations.judge(it, stats, p.env_steps)
@@ -131,11 +138,7 @@ class TaskRunner:
         p.history.append(history_entry(p, it, stats, pace, judged, done - now, solved))
         self._tick = done
         if judged is not None:
-            metric = self.evaluations.play_metric
-            if solved and p.solved_at is None:
-                p.solved_at = {"iterations": judged.iteration + 1, "env_steps": judged.env_steps,
-                               "train_time_s": round(p.train_time_s, 3), metric: getattr(judged.summary, metric)}
-            self.evaluations.keep_if_best(judged, solved, p, self.run_dir, self._write)
+            self.evaluations.record(judged, solved, p, self.run_dir, self._write)
         self.report((self._first_iteration, it, self._end_iteration), stats, losses, self.learner.learning_rate,
                     self.learner.action_std, pace, judged and (judged.summary, judged.iteration, solved),
                     run_eta_s(p, self._start, (self._first_iteration, it, self._end_iteration), self.evaluations))

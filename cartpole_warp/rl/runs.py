@@ -168,7 +168,7 @@ class Progress:
 class RunSummary:
     """``summary.json``: what a run did, in one schema."""
 
-    status: Literal["completed", "solved", "interrupted"]
+    status: Literal["completed", "solved", "interrupted", "non-finite"]
     iterations: int
     env_steps: int
     train_time_s: float

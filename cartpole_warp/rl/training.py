@@ -78,6 +78,71 @@ def median_of(history: list[dict], key: str) -> float | None:
     return round(statistics.median(values), 3) if values else None
 
 
+def solved_definition(cfg: TrainConfig) -> str:
+    """The task's solved rule and what it judges, in words."""
+    return (f"{cfg.task_spec.solved.describe()}, over the deterministic policy's whole episodes in "
+            f"{cfg.eval.num_envs} evaluation envs (play.py --headless's)")
+
+
+def finish_run(runner: TaskRunner, run_dir: Path, timing_s: dict[str, float], setup_time_s: float,
+               trained_before_s: float = 0.0, processes: int = 1) -> RunSummary:
+    """The end of ``runner``'s run in ``run_dir``: the exports of the policy play.py plays (``model_best.pt``'s where
+    an evaluation ran, else the last), the learning curve, ``summary.json`` (returned). ``timing_s`` gains the
+    training's seconds in this process (less ``trained_before_s``: a resumed run's earlier processes') and the
+    exports' and the curve's."""
+    cfg, progress = runner.train_cfg, runner.progress
+    timing_s["training"] = progress.train_time_s - trained_before_s
+    with timed(timing_s, "export"):
+        exports = []
+        if progress.iterations:  # play's policy: a policy can get worse after its best evaluation
+            runner.load(str(play_checkpoint(run_dir)), load_cfg={"actor": True})
+            exports = runner.export(run_dir / EXPORT_DIR)
+    with timed(timing_s, "curve"):
+        plot(runner, run_dir)
+    last = next((h for h in reversed(progress.history) if h["episodes"]), {})
+    evaluated = next((h for h in reversed(progress.history) if "evaluation" in h), None)
+    summary = RunSummary(
+        status=runner.stop_reason or "completed",
+        iterations=progress.iterations,
+        env_steps=progress.env_steps,
+        train_time_s=round(progress.train_time_s, 3),
+        setup_time_s=round(setup_time_s, 3),
+        env_steps_per_s=round(progress.env_steps / progress.train_time_s) if progress.train_time_s else None,
+        collection_ms=median_of(progress.history, "collection_ms"),
+        learning_ms=median_of(progress.history, "learning_ms"),
+        final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
+                                        "mean_reward_per_step", "time_limit_fraction", "full_episodes",
+                                        "full_reward_per_step")},
+        evaluation=({"iteration": evaluated["iteration"], **evaluated["evaluation"]} if evaluated else None),
+        evaluations=sum("evaluation" in h for h in progress.history),
+        evaluation_s=round(sum(h["evaluation"]["seconds"] for h in progress.history if "evaluation" in h), 3),
+        best=progress.best,
+        max_episode_length=runner.env.max_episode_length if cfg.env.task.has_time_limit else None,
+        env_dt_s=cfg.env.sim.env_dt,
+        solved=progress.solved_at is not None,
+        solved_at=progress.solved_at,
+        solved_definition=solved_definition(cfg),
+        task=cfg.task,
+        num_envs=cfg.env.num_envs * processes,
+        processes=processes,
+        device=runner.env.device,
+        checkpoint=latest_checkpoint(run_dir).name,
+        exports=[str(e.relative_to(run_dir)) for e in exports],
+        timing_s={phase: round(seconds, 3) for phase, seconds in timing_s.items()},
+    )
+    summary.write(run_dir)
+    return summary
+
+
+def plot(runner: TaskRunner, run_dir: Path) -> Path:
+    """Draw ``learning_curve.png`` from ``runner``'s progress history (matplotlib imported only now, so that start-up
+    does not pay for it)."""
+    from .curve import plot_learning_curve
+
+    task = runner.train_cfg.task_spec
+    return plot_learning_curve(run_dir / CURVE_FILE, runner.progress.history, task, f"{task.name}: run {run_dir.name}")
+
+
 class Training:
     """A run in ``run_dir`` (created, with its ``config.yaml``, only once the env is built and a checkpoint to resume
     from is loaded). In a torchrun job (``ranks``) each process trains its own envs on its own GPU with seed + rank,
@@ -126,8 +191,7 @@ class Training:
     @property
     def solved_definition(self) -> str:
         """The task's solved rule and what it judges, in words."""
-        return (f"{self.task.solved.describe()}, over the deterministic policy's whole episodes in "
-                f"{self.cfg.eval.num_envs} evaluation envs (play.py --headless's)")
+        return solved_definition(self.cfg)
 
     @property
     def max_episode_length(self) -> int:
@@ -166,54 +230,5 @@ class Training:
 
     def _finish(self, trained_before_s: float) -> RunSummary:
         """The end of a run: exports, the learning curve, ``summary.json``."""
-        progress = self.runner.progress
-        self.timing_s["training"] = progress.train_time_s - trained_before_s
-        with timed(self.timing_s, "export"):
-            exports = []
-            if progress.iterations:  # play's policy: a policy can get worse after its best evaluation
-                self.runner.load(str(play_checkpoint(self.run_dir)), load_cfg={"actor": True})
-                exports = self.runner.export(self.run_dir / EXPORT_DIR)
-        with timed(self.timing_s, "curve"):
-            self.plot()
-        last = next((h for h in reversed(progress.history) if h["episodes"]), {})
-        evaluated = next((h for h in reversed(progress.history) if "evaluation" in h), None)
-        has_limit = self.cfg.env.task.has_time_limit
-        summary = RunSummary(
-            status=self.runner.stop_reason or "completed",
-            iterations=progress.iterations,
-            env_steps=progress.env_steps,
-            train_time_s=round(progress.train_time_s, 3),
-            setup_time_s=round(self.setup_time_s, 3),
-            env_steps_per_s=round(progress.env_steps / progress.train_time_s) if progress.train_time_s else None,
-            collection_ms=median_of(progress.history, "collection_ms"),
-            learning_ms=median_of(progress.history, "learning_ms"),
-            final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
-                                            "mean_reward_per_step", "time_limit_fraction", "full_episodes",
-                                            "full_reward_per_step")},
-            evaluation=({"iteration": evaluated["iteration"], **evaluated["evaluation"]} if evaluated else None),
-            evaluations=sum("evaluation" in h for h in progress.history),
-            evaluation_s=round(sum(h["evaluation"]["seconds"] for h in progress.history if "evaluation" in h), 3),
-            best=progress.best,
-            max_episode_length=self.max_episode_length if has_limit else None,
-            env_dt_s=self.cfg.env.sim.env_dt,
-            solved=progress.solved_at is not None,
-            solved_at=progress.solved_at,
-            solved_definition=self.solved_definition,
-            task=self.cfg.task,
-            num_envs=self.cfg.env.num_envs * self.ranks.world_size,
-            processes=self.ranks.world_size,
-            device=self.env.device,
-            checkpoint=latest_checkpoint(self.run_dir).name,
-            exports=[str(e.relative_to(self.run_dir)) for e in exports],
-            timing_s={phase: round(seconds, 3) for phase, seconds in self.timing_s.items()},
-        )
-        summary.write(self.run_dir)
-        return summary
-
-    def plot(self) -> Path:
-        """Draw ``learning_curve.png`` from the progress history (matplotlib imported only now, so that start-up does
-        not pay for it)."""
-        from .curve import plot_learning_curve
-
-        return plot_learning_curve(self.run_dir / CURVE_FILE, self.runner.progress.history, self.task,
-                                   f"{self.task.name}: run {self.run_dir.name}")
+        return finish_run(self.runner, self.run_dir, self.timing_s, self.setup_time_s, trained_before_s,
+                          self.ranks.world_size)

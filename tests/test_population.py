@@ -1,0 +1,127 @@
+"""Populations (``train.py --seeds``, ``rl.population``): member k's block of the env starts as a solo env of its seed,
+members do not depend on each other's seeds or settings, a member's run folder plays and resumes as a solo run's, a
+member gone non-finite ends alone, bad population inputs are one line each; and every state task trains one.
+(The members' update against rsl-rl's own PPO: tests/test_population_ppo.py.)"""
+
+import dataclasses
+import json
+
+import pytest
+import torch
+from conftest import DEVICE, call_main
+from test_train_cli import only_run
+
+from cartpole_warp import tasks
+from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.population import members_of
+from cartpole_warp.rl.population_training import POPULATION_FILE, PopulationTraining
+
+STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
+
+
+def population(tmp_path, seeds, vary=(), task=tasks.DEFAULT_TASK, num_envs=16, **agent):
+    cfg = train_config(task)
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger = num_envs, DEVICE, "none"
+    cfg.agent = dataclasses.replace(cfg.agent, **agent)
+    return PopulationTraining(cfg, members_of(list(seeds), list(vary)), tmp_path)
+
+
+def first_rollout(training):
+    """The members' first iteration (no random episode starts): (observations (K, T, N, O), actions (K, T, N, A))
+    as acted on, and the networks' parameters (K, P) after the update."""
+    obs = training.env.get_observations()
+    training.learner.iteration(obs, 0)  # the update keeps the rollout's storage
+    ppo = training.learner.ppo
+    return ppo.observations.clone(), ppo.actions.clone(), ppo.model.params.detach().clone()
+
+
+def test_each_members_block_starts_and_steps_as_a_solo_env_of_its_seed(tmp_path):
+    training = population(tmp_path, [3, 7, 11])
+    observations, actions, _ = first_rollout(training)
+    steps = observations.shape[1]
+    for k, seed in enumerate([3, 7, 11]):
+        solo = training.cfg.task_spec.env_class(dataclasses.replace(training.cfgs[k].env, num_envs=16))
+        seen = [solo.get_observations()]
+        for t in range(steps - 1):
+            seen.append(solo.step(actions[k, t])[0])
+        assert torch.equal(torch.stack(seen), observations[k]), f"member {k} (seed {seed})"
+
+
+@pytest.mark.parametrize("change", ["seed", "learning_rate"])
+def test_changing_one_member_leaves_another_members_rollout_and_update_unchanged(tmp_path, change):
+    base = first_rollout(population(tmp_path / "a", [0, 1, 2], ["agent.algorithm.learning-rate=1e-3"]))
+    seeds, rate = ([0, 1, 5], "1e-3") if change == "seed" else ([0, 1, 2], "1e-3")
+    other = population(tmp_path / "b", seeds, [f"agent.algorithm.learning-rate={rate}"])
+    if change == "learning_rate":
+        other.learner.ppo.learning_rate[2] = 3e-4
+    changed = first_rollout(other)
+    for k in (0, 1):
+        assert all(torch.equal(a[k], b[k]) for a, b in zip(base, changed)), f"member {k}"
+    assert not torch.equal(base[2][2], changed[2][2]), "the changed member's update differs"
+
+
+def test_a_member_gone_non_finite_ends_alone_and_the_others_go_on(tmp_path, capsys):
+    training = population(tmp_path, [0, 1, 2], max_iterations=3, init_at_random_ep_len=False)
+    iteration = training.learner.iteration
+
+    def poisoned(obs, it):
+        result = iteration(obs, it)
+        if it == 0:
+            training.learner.ppo.model.params.data[1] = float("nan")
+        return result
+
+    training.learner.iteration = poisoned
+    result = training.run()
+    statuses = {row["member"]: (row["status"], row["iterations"]) for row in result["members"]}
+    assert statuses == {"seed0": ("completed", 3), "seed1": ("non-finite", 0), "seed2": ("completed", 3)}
+    assert "seed1: its networks went non-finite in iteration 1; it ends here" in capsys.readouterr().out
+    params = training.learner.ppo.model.params.detach()
+    assert torch.isfinite(params[[0, 2]]).all()
+
+
+def test_a_members_run_folder_plays_and_resumes_as_a_solo_run(tmp_path):
+    result = call_main("train", "--seeds", "4", "9", "--num-envs", "16", "--max-iterations", "2", "--device", "cpu",
+                       "--logger", "none", "--log-dir", tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = only_run(tmp_path)
+    table = json.loads((run / POPULATION_FILE).read_text())
+    assert [row["member"] for row in table["members"]] == ["seed4", "seed9"]
+    assert "| seed4 | completed |" in result.stdout and "2 running, 0 solved of 2" in result.stdout
+    member = run / "seed9"
+    summary = json.loads((member / "summary.json").read_text())
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 16 * train_config().agent.num_steps_per_env
+    assert (member / "exported" / "policy.onnx").exists()
+    played = call_main("play", "--headless", "--run", member, "--num-envs", "4", "--video-length", "2")
+    assert played.returncode == 0, played.stdout + played.stderr
+    resumed = call_main("train", "--resume", member, "--max-iterations", "1", "--device", "cpu", "--logger", "none")
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    checkpoint = torch.load(member / "model_2.pt", weights_only=False)
+    assert checkpoint["iter"] == 2 and checkpoint["infos"]["iterations"] == 3
+    steps = {state["step"].item() for state in checkpoint["optimizer_state_dict"]["state"].values()}
+    first = torch.load(member / "model_1.pt", weights_only=False)
+    before = {state["step"].item() for state in first["optimizer_state_dict"]["state"].values()}
+    assert len(steps) == len(before) == 1 and steps.pop() > before.pop() > 0, "Adam's steps carried over the resume"
+
+
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--population.vary", "agent.algorithm.gamma=0.9"], "a population needs seeds: --seeds 0 1 2"),
+    (["--seeds", "1", "2", "1"], "--seeds names seed 1 twice"),
+    (["--seeds", "1", "--population.vary", "agent.actor.hidden-dims=64"], "agent.actor.hidden-dims: members share"),
+    (["--seeds", "1", "--population.vary", "agent.algorithm.gamma=high"], "the values must be numbers"),
+    (["--seeds", *map(str, range(100)), "--num-envs", "1000000"], "members of 1,000,000 envs (fewer --seeds or"),
+    (["--seeds", "1", "--algorithm", "apg"], "cannot train with --algorithm apg"),
+])
+def test_bad_population_inputs_are_one_clear_line(tmp_path, flags, message):
+    result = call_main("train", *flags, "--device", "cpu", "--max-iterations", "1", "--logger", "none", "--log-dir",
+                       tmp_path)
+    assert result.returncode != 0 and message in result.stderr, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("task", STATE_TASKS)
+def test_every_state_task_trains_a_population(tmp_path, task):
+    training = population(tmp_path, [0, 1], task=task, num_envs=8, max_iterations=2)
+    result = training.run()
+    assert [row["iterations"] for row in result["members"]] == [2, 2]
+    assert all(row["status"] == "completed" for row in result["members"])
+    assert torch.isfinite(training.learner.ppo.model.params).all()
