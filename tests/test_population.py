@@ -15,6 +15,8 @@ from cartpole_warp import tasks
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.population import members_of
 from cartpole_warp.rl.population_training import POPULATION_FILE, PopulationTraining
+from cartpole_warp.rl.runner import TaskRunner
+from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
 
@@ -125,3 +127,68 @@ def test_every_state_task_trains_a_population(tmp_path, task):
     assert [row["iterations"] for row in result["members"]] == [2, 2]
     assert all(row["status"] == "completed" for row in result["members"])
     assert torch.isfinite(training.learner.ppo.model.params).all()
+
+
+@pytest.mark.parametrize("task", ["cartpole-swingup", "cartpole-balance"])
+def test_a_one_member_population_trains_as_rsl_rl_ppo_on_the_same_draws(tmp_path, task):
+    """Three iterations of a population of one and of a solo run (``PpoLearner``: rsl-rl's storage, SyncFreePPO),
+    from the same networks, with the same action noise and mini-batches (torch seeded alike before each rollout and
+    update): the same observations, actions and returns, and the same networks after each update (to float tolerance:
+    batched and single matrix products round apart)."""
+    cfg = train_config(task)
+    cfg.env.num_envs, cfg.agent.logger = 64, "none"
+    cfg.agent.actor.obs_normalization = cfg.agent.critic.obs_normalization = True
+    training = PopulationTraining(cfg, members_of([5]), tmp_path)
+    torch.manual_seed(5)
+    solo = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(training.cfgs[0].env)), training.cfgs[0], None)
+    alg, population, ppo = solo.alg, training.learner, training.learner.ppo
+    obs, solo_obs = training.env.get_observations(), solo.env.get_observations()
+    for i in range(3):
+        torch.manual_seed(100 + i)
+        with torch.inference_mode():
+            solo_obs = solo.learner._rollout(solo_obs)
+        torch.manual_seed(100 + i)
+        with torch.inference_mode():
+            obs = population._rollout(obs)
+        torch.testing.assert_close(ppo.observations[0], alg.storage.observations["policy"], rtol=1e-4, atol=1e-5,
+                                   msg=f"observations, iteration {i}")
+        torch.testing.assert_close(ppo.actions[0], alg.storage.actions, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(alg.storage.returns.squeeze(-1), ppo.returns[0], rtol=1e-4, atol=1e-5)
+        batch = ppo.num_envs * ppo.num_steps
+        torch.manual_seed(200 + i)
+        alg.update()
+        torch.manual_seed(200 + i)
+        ppo.update(permutation=torch.randperm(batch)[None])
+        actor, critic = ppo.model.member_state_dicts(0)
+        for ours, theirs in ((actor, alg.actor.state_dict()), (critic, alg.critic.state_dict())):
+            for key, value in theirs.items():
+                torch.testing.assert_close(ours[key], value, rtol=1e-4, atol=1e-5, msg=f"{key}, iteration {i}")
+
+
+def test_each_member_trains_as_a_population_of_itself_alone_on_the_same_draws(tmp_path, monkeypatch):
+    """Members do not touch each other: three iterations of a population of three, and of each member alone fed the
+    same action noise (its block's rows of the population's draw) and mini-batches, give each member the same
+    observations and networks (to float tolerance)."""
+    cfg = train_config("cartpole-swingup")
+    cfg.env.num_envs, cfg.agent.logger = 32, "none"
+    together = PopulationTraining(cfg, members_of([3, 4, 5]), tmp_path / "together")
+    alone = [PopulationTraining(cfg, members_of([seed]), tmp_path / f"alone{seed}") for seed in (3, 4, 5)]
+    obs, alone_obs = together.env.get_observations(), [training.env.get_observations() for training in alone]
+    ppo, draw = together.learner.ppo, torch.randn_like
+    for _ in range(3):
+        drawn = []
+        monkeypatch.setattr(torch, "randn_like", lambda t, drawn=drawn: drawn.append(draw(t)) or drawn[-1])
+        with torch.inference_mode():
+            obs = together.learner._rollout(obs)
+        permutation = torch.rand(3, ppo.num_envs * ppo.num_steps).argsort(dim=1)
+        ppo.update(permutation=permutation)
+        for k, training in enumerate(alone):
+            rows = iter(drawn)
+            monkeypatch.setattr(torch, "randn_like", lambda t, k=k, rows=rows: next(rows)[k:k + 1].clone())
+            with torch.inference_mode():
+                alone_obs[k] = training.learner._rollout(alone_obs[k])
+            training.learner.ppo.update(permutation=permutation[k:k + 1])
+            torch.testing.assert_close(training.learner.ppo.observations[0], ppo.observations[k], rtol=1e-4,
+                                       atol=1e-4)
+            torch.testing.assert_close(training.learner.ppo.model.params[0], ppo.model.params[k], rtol=1e-4,
+                                       atol=1e-5)

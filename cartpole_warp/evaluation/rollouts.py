@@ -146,7 +146,8 @@ class FirstEpisodesRun:
     def __init__(self, env: BatchedEnv, policy: Policy, capture: bool = True):
         self.env, self.policy = env, policy
         self._obs = env.get_observations()
-        self._tally = FirstEpisodeTally(env.num_envs, env.device)
+        self.tally = FirstEpisodeTally(env.num_envs, env.device)
+        """The run's episodes as they are counted (a ``hopeless`` may read them by block)."""
         capture = capture and getattr(policy, "capturable", True) and torch.device(env.device).type == "cuda"
         self._graph = TorchGraph(env.device) if capture else None
         if self._graph is not None:
@@ -155,7 +156,7 @@ class FirstEpisodesRun:
 
     def _step(self):
         obs, reward, terminated, truncated, _ = self.env.step(self.policy(self._obs).to(torch.float32))
-        self._tally.add(reward, terminated, truncated)
+        self.tally.add(reward, terminated, truncated)
         self._obs.copy_(obs)
 
     def _advance(self):
@@ -174,7 +175,7 @@ class FirstEpisodesRun:
         steps with the count of episodes that ended before the time limit, stops the run where it says True (the
         result then counts the episodes that had ended)."""
         self._obs.copy_(self.env.reset(seed)[0] if reset else self.env.get_observations())
-        self._tally.restart(steps)
+        self.tally.restart(steps)
         if on_step is not None:
             on_step(0)
         for step in range(1, steps + 1):
@@ -182,9 +183,9 @@ class FirstEpisodesRun:
             if on_step is not None:
                 on_step(step)
             if (hopeless is not None and step % HOPELESS_CHECK_STEPS == 0 and step < steps
-                    and hopeless(self._tally.counts()[1])):
-                return self._tally.result(cut_at_step=step)
-        return self._tally.result()
+                    and hopeless(self.tally.counts()[1])):
+                return self.tally.result(cut_at_step=step)
+        return self.tally.result()
 
 
 def first_episodes(env: BatchedEnv, policy: Policy, steps: int, on_step: Callable[[int], None] | None = None,

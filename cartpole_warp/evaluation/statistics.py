@@ -37,7 +37,7 @@ class EpisodeSummary:
 class EpisodeStats:
     """Sums over finished episodes, kept on the device: ``add`` never waits for the device, ``pop`` reads once.
     An episode is full when it ran ``max_episode_length`` steps. With ``groups`` the envs are that many equal blocks
-    (a population's members), each summed apart (``group``)."""
+    (a population's members), each summed apart (``take``)."""
 
     def __init__(self, device: str | torch.device, max_episode_length: int, groups: int = 1):
         import torch
@@ -46,12 +46,6 @@ class EpisodeStats:
         self._sums = torch.zeros(groups, 7, dtype=torch.float64, device=device)
         """Per group: episodes, returns, lengths, rewards per step, episodes that reached the time limit, full
         episodes, their rewards per step."""
-
-    def group(self, k: int) -> EpisodeStats:
-        """Group ``k``'s statistics: its ``pop`` reads and clears its sums alone (the same tensor's row)."""
-        view = EpisodeStats.__new__(EpisodeStats)
-        view.max_episode_length, view._sums = self.max_episode_length, self._sums[k:k + 1]
-        return view
 
     def add(self, ended: torch.Tensor, returns: torch.Tensor, lengths: torch.Tensor, timed_out: torch.Tensor):
         """Count the episodes where ``ended`` (N,) bool: their returns, lengths (env steps) and whether they reached
@@ -67,11 +61,14 @@ class EpisodeStats:
 
     def summary(self) -> EpisodeSummary:
         """Means over the episodes counted so far, every group's (one read from the device)."""
-        count, returns, lengths, per_step, timed_out, full, full_per_step = self._sums.sum(dim=0).tolist()
-        if count == 0:
-            return EpisodeSummary(0, None, None, None, None)
-        return EpisodeSummary(int(count), returns / count, lengths / count, per_step / count, timed_out / count,
-                              int(full), full_per_step / full if full else None)
+        return summary_of(self._sums.sum(dim=0).tolist())
+
+    def take(self) -> torch.Tensor:
+        """The sums so far, (groups, 7) on the device (``summary_of`` a row on the host), then start afresh (device
+        work only)."""
+        sums = self._sums.clone()
+        self._sums.zero_()
+        return sums
 
     def pop(self, all_processes: bool = False) -> EpisodeSummary:
         """The summary so far (``all_processes``: summed over the processes of a torchrun job first); then start
@@ -83,6 +80,16 @@ class EpisodeStats:
         result = self.summary()
         self._sums.zero_()
         return result
+
+
+def summary_of(sums: list[float]) -> EpisodeSummary:
+    """The means of one group's sums (``EpisodeStats``: episodes, returns, lengths, rewards per step, episodes that
+    reached the time limit, full episodes, their rewards per step)."""
+    count, returns, lengths, per_step, timed_out, full, full_per_step = sums
+    if count == 0:
+        return EpisodeSummary(0, None, None, None, None)
+    return EpisodeSummary(int(count), returns / count, lengths / count, per_step / count, timed_out / count,
+                          int(full), full_per_step / full if full else None)
 
 
 METRICS = tuple(f.name for f in dataclasses.fields(EpisodeSummary) if f.type == "float | None")

@@ -77,6 +77,7 @@ class Evaluations:
         self.learner, self.eval_env = learner, eval_env
         self.in_step = InStepJudge(in_step, learner.actor) if in_step is not None else None
         self._run: FirstEpisodesRun | None = None
+        self._given: EpisodeSummary | None = None
         self.last_iteration = -1
         """The iteration after which the latest evaluation began."""
 
@@ -92,6 +93,11 @@ class Evaluations:
             self._run = FirstEpisodesRun(self.eval_env, deterministic(self.learner.actor))
             self.learner.train_mode()
 
+    def give(self, summary: EpisodeSummary):
+        """The verdict on the policy after the iteration now ending, from an evaluation run elsewhere (a population's,
+        which judges its members together): ``judge`` returns it."""
+        self._given = summary
+
     def due(self, it: int, stats: EpisodeSummary) -> bool:
         """Whether the policy after iteration ``it`` is to be evaluated (``eval.min_interval``, ``max_interval``)."""
         since = it - self.last_iteration
@@ -100,7 +106,10 @@ class Evaluations:
     def judge(self, it: int, stats: EpisodeSummary, env_steps: int) -> Judged | None:
         """The verdict of an evaluation after iteration ``it``: on ``eval_env``, of the policy after ``it`` where one is
         due; in the step, of the policy it froze, where its episodes are over (one is begun where it is due and none
-        runs). None otherwise."""
+        runs); a verdict ``give``n for it. None otherwise."""
+        if self._given is not None:
+            self.last_iteration, summary, self._given = it, self._given, None
+            return Judged(summary, it, env_steps)
         if self.in_step is not None:
             return self._in_step_verdict(it, stats, env_steps)
         if self.eval_env is None or not self.due(it, stats):

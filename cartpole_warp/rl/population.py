@@ -25,13 +25,15 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict
 
+from ..engine.env import BatchedEnv
 from ..engine.streams import PhaseClock, TorchGraph
-from ..evaluation.statistics import EpisodeStats
+from ..evaluation.rollouts import FirstEpisodes, FirstEpisodesRun, whole_episode_steps
+from ..evaluation.statistics import EpisodeStats, EpisodeSummary, SolvedRule, summary_of
 from ..settings.config import ConfigError
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .policies import build_networks
-from .population_ppo import BatchedActorCritic, PopulationPPO
+from .population_ppo import ADAM_BETAS, ADAM_EPS, BatchedActorCritic, PopulationPPO
 
 VARIABLE_SETTINGS = ("learning_rate", "entropy_coef", "gamma", "lam", "clip_param", "desired_kl", "value_loss_coef",
                      "max_grad_norm")
@@ -112,6 +114,31 @@ def check_population(cfg: TrainConfig, members: list[Member]):
         raise ConfigError("a population needs at least one member")
 
 
+@dataclass
+class Readout:
+    """Each member's figures after an iteration, on the host (``PopulationLearner.read``)."""
+
+    episodes: list[EpisodeSummary]
+    learning_rates: list[float]
+    finite: list[bool]
+    """The member's networks hold finite numbers only."""
+    losses: list[dict[str, float]]
+    action_std: list[torch.Tensor]
+
+
+class MemberEpisodes:
+    """Member k's training episodes of the iteration just read (``Readout``), as its runner pops them."""
+
+    def __init__(self, population: PopulationLearner, k: int):
+        self.population, self.k = population, k
+
+    def summary(self) -> EpisodeSummary:
+        return self.population.readout.episodes[self.k]
+
+    def pop(self, all_processes: bool = False) -> EpisodeSummary:
+        return self.summary()
+
+
 class PopulationLearner:
     """The members' iterations on ``env`` (K x N envs, member k's block k), as one: each step the members' batched
     actors act on their blocks, one env step; then one update of every member still ``active``. On a GPU with
@@ -146,6 +173,8 @@ class PopulationLearner:
         graphed = cfgs[0].agent.cuda_graph and torch.device(self.device).type == "cuda"
         self._graphs = (TorchGraph(self.device), TorchGraph(self.device)) if graphed else None
         self._rollout_input: TensorDict | None = None
+        self.readout: Readout | None = None
+        """The latest iteration's figures (``read``)."""
 
     def _mirror(self, obs: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The task's mirror images after the originals (``wrappers.rsl_rl.mirror``'s, on flat tensors)."""
@@ -177,6 +206,19 @@ class PopulationLearner:
             self.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"], time_outs)
         self.ppo.compute_returns(obs["policy"].view(members, n, -1))
         return obs
+
+    def read(self, losses: dict[str, torch.Tensor]) -> Readout:
+        """The iteration's per-member figures on the host, in one read from the device; the episode sums start
+        afresh."""
+        ppo = self.ppo
+        columns = [self.episodes.take(), ppo.learning_rate[:, None], torch.isfinite(ppo.model.params).all(1)[:, None],
+                   torch.stack(list(losses.values()), dim=1), ppo.model.action_std()]
+        rows = torch.cat([column.to(torch.float64) for column in columns], dim=1).tolist()
+        names, std = list(losses), 9 + len(losses)
+        self.readout = Readout([summary_of(row[:7]) for row in rows], [row[7] for row in rows],
+                               [bool(row[8]) for row in rows], [dict(zip(names, row[9:std])) for row in rows],
+                               [torch.tensor(row[std:]) for row in rows])
+        return self.readout
 
     def release_graphs(self):
         for graph in self._graphs or ():
@@ -214,17 +256,17 @@ class MemberLearner:
     def __init__(self, population: PopulationLearner, k: int):
         self.population, self.k = population, k
         self.env = MemberEnv(population.env, k, population.num_envs)
-        self.episodes, self.clock = population.episodes.group(k), population.clock
+        self.episodes, self.clock = MemberEpisodes(population, k), population.clock
         self.actor, self.critic = population.actors[k], population.critics[k]
         self.on_step = None
 
     @property
     def learning_rate(self) -> float:
-        return self.population.ppo.learning_rate[self.k].item()
+        return self.population.readout.learning_rates[self.k]
 
     @property
     def action_std(self) -> torch.Tensor:
-        return self.population.ppo.model.action_std()[self.k]
+        return self.population.readout.action_std[self.k]
 
     def begin(self, first_iteration: int, end_iteration: int):
         """Nothing: the population's iterations are the member's."""
@@ -246,20 +288,23 @@ class MemberLearner:
         self.critic.eval()
 
     def state_dict(self) -> dict:
-        """rsl-rl's checkpoint of the member: its networks and its Adam state as ``SyncFreePPO``'s optimizer holds it
-        (one parameter group over the actor's then the critic's parameters)."""
+        """rsl-rl's checkpoint of the member: its networks and its Adam state in the format of the optimizer of
+        ``SyncFreePPO`` (torch's ``Adam`` over the actor's then the critic's parameters), made without a torch
+        optimizer (the first one made imports ``torch._dynamo``: seconds, in the middle of training)."""
         self.eval_mode()
         ppo, k = self.population.ppo, self.k
-        optimizer = torch.optim.Adam([*self.actor.parameters(), *self.critic.parameters()], lr=ppo.learning_rate[k])
         moments = [ppo.model.member_parameters(k, tensor) for tensor in (ppo.exp_avg, ppo.exp_avg_sq)]
-        for role, network in (("actor", self.actor), ("critic", self.critic)):
-            for name, param in network.named_parameters():
-                optimizer.state[param] = {"step": ppo.adam_steps[k].to(torch.float32).cpu(),
-                                          "exp_avg": moments[0][role][name].clone(),
-                                          "exp_avg_sq": moments[1][role][name].clone()}
+        names = [(role, name) for role, network in (("actor", self.actor), ("critic", self.critic))
+                 for name, _ in network.named_parameters()]
+        step = ppo.adam_steps[k].to(torch.float32).cpu()
+        state = {i: {"step": step.clone(), "exp_avg": moments[0][role][name].clone(),
+                     "exp_avg_sq": moments[1][role][name].clone()} for i, (role, name) in enumerate(names)}
+        group = {"lr": ppo.learning_rate[k].item(), "betas": ADAM_BETAS, "eps": ADAM_EPS, "weight_decay": 0,
+                 "amsgrad": False, "maximize": False, "foreach": None, "capturable": False, "differentiable": False,
+                 "fused": None, "decoupled_weight_decay": False, "params": list(range(len(names)))}
         self.train_mode()
         return {"actor_state_dict": self.actor.state_dict(), "critic_state_dict": self.critic.state_dict(),
-                "optimizer_state_dict": optimizer.state_dict()}
+                "optimizer_state_dict": {"state": state, "param_groups": [group]}}
 
     def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
         """The networks of ``loaded`` (``load_cfg``: rsl-rl's choice of parts) into the member's rsl-rl networks;
@@ -272,3 +317,38 @@ class MemberLearner:
 
     def release_graphs(self):
         """Nothing: the graphs are the population's."""
+
+
+class PopulationEvaluation:
+    """The members' evaluations as one run on ``eval_env`` (K x M envs, M = ``eval.num_envs``): member k's block
+    restarts as its own evaluation env starts (``BatchedEnv.restart`` with its seed: the episodes ``play.py --headless``
+    plays of its run) and acts with member k's deterministic policy, all members' in one batched forward; each block's
+    whole first episodes are member k's verdict (cut, as a solo evaluation is, once every judged member's failures keep
+    the rule from being met)."""
+
+    def __init__(self, eval_env: BatchedEnv, learner: PopulationLearner, seeds: list[int], rule: SolvedRule):
+        self.env, self.learner, self.seeds, self.rule = eval_env, learner, seeds, rule
+        self.num_members, self.num_envs = len(seeds), eval_env.num_envs // len(seeds)
+        self.steps = whole_episode_steps(eval_env)
+        self._run = FirstEpisodesRun(eval_env, self._policy)
+
+    def _policy(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.learner.ppo.model.action_mean(obs.view(self.num_members, self.num_envs, -1)).flatten(0, 1)
+
+    def _hopeless(self, members: list[int]) -> bool:
+        """Whether every one of ``members`` has failed too many episodes for the rule (one read from the device)."""
+        tally = self._run.tally
+        failed = (tally.finished & ~tally.reached).view(self.num_members, self.num_envs).sum(dim=1).tolist()
+        return all(self.rule.hopeless(failed[k], self.num_envs) for k in members)
+
+    def __call__(self, members: list[int]) -> dict[int, EpisodeSummary]:
+        """Each of ``members``' verdict on its policy as it stands."""
+        m = self.num_envs
+        for k in members:
+            self.env.restart(k * m, (k + 1) * m, self.seeds[k])
+        result = self._run(self.steps, reset=False, hopeless=lambda failed: self._hopeless(members))
+        cap = min(self.steps, self.env.max_episode_length)
+        return {k: FirstEpisodes(result.returns[k * m:(k + 1) * m], result.lengths[k * m:(k + 1) * m],
+                                 result.reached_limit[k * m:(k + 1) * m], result.cut_at_step,
+                                 None if result.ended is None else result.ended[k * m:(k + 1) * m]).summary(cap)
+                for k in members}

@@ -4,8 +4,9 @@ Each member has its own actor, critic, observation normalisers, Gaussian std, Ad
 rate (with rsl-rl's adaptive-KL rule), gradient-norm clip, mini-batch permutation and scalar PPO settings
 (``learning_rate``, ``entropy_coef``, ``gamma``, ``lam``, ``clip_param``, ``desired_kl``, ``value_loss_coef``,
 ``max_grad_norm``: (K,) tensors); shapes (networks, N envs, T steps, epochs, mini-batches) are shared. The K networks
-are one flat (K, P) parameter tensor whose layers run as ``torch.baddbmm``, so acting and each mini-batch step are a
-fixed number of kernel launches whatever K is, with no host sync (``update`` could be captured as a CUDA graph).
+are one flat (K, P) parameter tensor whose layers run as batched products (``BatchedLinear``), so acting and each
+mini-batch step are a fixed number of kernel launches whatever K is, with no host sync (``update`` can be captured as
+a CUDA graph).
 
 Every member follows rsl-rl's ``PPO`` as ``SyncFreePPO`` (``rl.ppo``) runs it: GAE with time-out bootstrapping,
 advantages normalised over the rollout, the same mini-batches for every epoch, clipped surrogate and value losses,
@@ -32,6 +33,32 @@ originals first, then C-1 mirrored copies (rsl-rl's ``data_augmentation_func`` c
 
 ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
 """torch.optim.Adam's defaults, which rsl-rl's PPO uses."""
+
+
+SPLIT_K_ROWS = 512
+"""Rows of a batch per partial product of a batched linear layer's weight gradient (``BatchedLinear``)."""
+
+
+class BatchedLinear(torch.autograd.Function):
+    """K linear layers at once, ``bias + x @ weight`` for x (K, B, in), weight (K, in, out), bias (K, 1, out), whose
+    weight gradient x^T @ grad sums over the B rows in partial products of ``SPLIT_K_ROWS`` rows each: as one batched
+    product per member (what ``torch.baddbmm``'s backward does) a GPU computes each member's small (in, out) output
+    on a single tile, a reduction over B that leaves all but K of its multiprocessors idle."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(x, weight)
+        return torch.baddbmm(bias, x, weight)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        x, weight = ctx.saved_tensors
+        members, rows, n_in = x.shape
+        parts = math.gcd(rows, max(1, rows // SPLIT_K_ROWS))
+        grad_x = torch.bmm(grad, weight.transpose(1, 2)) if ctx.needs_input_grad[0] else None
+        grad_weight = torch.bmm(x.reshape(members * parts, rows // parts, n_in).transpose(1, 2),
+                                grad.reshape(members * parts, rows // parts, -1))
+        return grad_x, grad_weight.view(members, parts, n_in, -1).sum(dim=1), grad.sum(dim=1, keepdim=True)
 
 
 class BatchedNormalizer(nn.Module):
@@ -167,7 +194,7 @@ class BatchedActorCritic(nn.Module):
 
     def _mlp(self, x: torch.Tensor, layers: list) -> torch.Tensor:
         for i, (weight, bias) in enumerate(layers):
-            x = torch.baddbmm(bias, x, weight)
+            x = BatchedLinear.apply(x, weight, bias)
             if i < len(layers) - 1:
                 x = self.activation(x)
         return x
@@ -184,6 +211,11 @@ class BatchedActorCritic(nn.Module):
         actor_obs = obs if self.actor_normalizer is None else self.actor_normalizer(obs)
         critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs)
         return self._mlp(actor_obs, actor), self._std(std_param), self._mlp(critic_obs, critic).squeeze(-1)
+
+    def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
+        """(K, B, O) observations -> the actors' means (K, B, A): the members' deterministic actions."""
+        actor_obs = obs if self.actor_normalizer is None else self.actor_normalizer(obs)
+        return self._mlp(actor_obs, self._networks()[0])
 
     @torch.no_grad()
     def action_std(self) -> torch.Tensor:

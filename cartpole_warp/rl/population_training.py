@@ -15,8 +15,6 @@ import statistics
 import time
 from pathlib import Path
 
-import torch
-
 from ..engine.runtime import free_memory_bytes, resolve_device, timed
 from ..settings.config import ConfigError
 from ..settings.files import write_text
@@ -24,7 +22,7 @@ from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import Ranks
 from .policies import to_rsl_rl
-from .population import Member, MemberLearner, PopulationLearner, check_population
+from .population import Member, MemberLearner, PopulationEvaluation, PopulationLearner, check_population
 from .progress import format_duration
 from .runner import TaskRunner
 from .runs import RunSummary, save_config
@@ -39,12 +37,12 @@ def check_population_memory(cfg: TrainConfig, members: int, device: str):
     per_env = bytes_per_env(cfg)
     needs = {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
     for where, need_per_env in needs.items():
-        per_member = cfg.env.num_envs * need_per_env
-        need, free = members * per_member + cfg.eval.num_envs * need_per_env, free_memory_bytes(where)
+        per_member = (cfg.env.num_envs + cfg.eval.num_envs) * need_per_env
+        need, free = members * per_member, free_memory_bytes(where)
         if need > free:
             raise ConfigError(f"a population of {members} members x {cfg.env.num_envs:,} envs of {cfg.task} needs "
-                              f"about {need / 1e9:,.1f} GB on {where}; it has {free / 1e9:,.1f} GB free: at most "
-                              f"~{max(0, free - cfg.eval.num_envs * need_per_env) // per_member} members of "
+                              f"about {need / 1e9:,.1f} GB on {where} (with {cfg.eval.num_envs} evaluation envs each); "
+                              f"it has {free / 1e9:,.1f} GB free: at most ~{free // per_member} members of "
                               f"{cfg.env.num_envs:,} envs (fewer --seeds or --num-envs)")
 
 
@@ -71,21 +69,20 @@ class PopulationTraining:
         for k, member in enumerate(members):  # each block as a solo run of its seed starts
             env.restart(k * n, (k + 1) * n, member.seed)
         self.env = RslRlVecEnv(env)
-        with timed(self.timing_s, "eval_env"):
-            self.eval_env = task.env_class(dataclasses.replace(cfg.env, num_envs=cfg.eval.num_envs))
         with timed(self.timing_s, "networks"):
             rsl_rl_cfg = to_rsl_rl(cfg.agent, mirror=self.env.obs_mirror is not None, images=self.env.images)
             self.learner = PopulationLearner(self.env, self.cfgs, rsl_rl_cfg, cfg.env.seed)
             self.runners = []
             for k, (member, member_cfg) in enumerate(zip(members, self.cfgs)):
                 learner = MemberLearner(self.learner, k)
-                runner = TaskRunner(learner.env, member_cfg, self.run_dir / member.name, self.eval_env, learner)
+                runner = TaskRunner(learner.env, member_cfg, self.run_dir / member.name, learner=learner)
                 runner.report.console = False
+                save_config(self.run_dir / member.name, member_cfg)
                 self.runners.append(runner)
         with timed(self.timing_s, "eval_env"):
-            for runner, member, member_cfg in zip(self.runners, members, self.cfgs):
-                runner.evaluations.prepare()
-                save_config(self.run_dir / member.name, member_cfg)
+            eval_env = task.env_class(dataclasses.replace(cfg.env, num_envs=len(members) * cfg.eval.num_envs))
+            self.evaluation = PopulationEvaluation(eval_env, self.learner, [m.seed for m in members], task.solved)
+        self.evaluation_s = 0.0
         self.setup_time_s = time.perf_counter() - start
         self.interrupted = False
 
@@ -121,8 +118,9 @@ class PopulationTraining:
         loop_start = time.perf_counter()
         for it in range(iterations):
             obs, losses = self.learner.iteration(obs, it)
-            losses = {name: value.tolist() for name, value in losses.items()}
-            finite = torch.isfinite(self.learner.ppo.model.params).all(dim=1).tolist()
+            readout = self.learner.read(losses)
+            finite = readout.finite
+            self._evaluate_if_due(it, [k for k in running if finite[k]])
             for k in list(running):
                 runner = self.runners[k]
                 if not finite[k]:
@@ -131,7 +129,7 @@ class PopulationTraining:
                           "here, the others go on", flush=True)
                 elif self.interrupted:
                     runner.request_stop("interrupted")
-                if runner.stop_reason is not None or runner.after_iteration(it, {n: v[k] for n, v in losses.items()}):
+                if runner.stop_reason is not None or runner.after_iteration(it, readout.losses[k]):
                     running.remove(k)
                     self.learner.ppo.active[k] = False
                     runner.finish()
@@ -141,6 +139,18 @@ class PopulationTraining:
                 break
         for k in running:
             self.runners[k].finish()
+
+    def _evaluate_if_due(self, it: int, running: list[int]):
+        """Where any of the ``running`` members is due for an evaluation after iteration ``it`` (its own schedule:
+        ``Evaluations.due``), every one of them is judged, in one batched run; each member's runner takes its
+        verdict."""
+        runners = self.runners
+        if not any(runners[k].evaluations.due(it, runners[k].episodes.summary()) for k in running):
+            return
+        start = time.perf_counter()
+        for k, summary in self.evaluation(running).items():
+            runners[k].evaluations.give(summary)
+        self.evaluation_s += time.perf_counter() - start
 
     def _judged_line(self, k: int):
         """A line where member ``k``'s latest iteration brought a verdict."""
@@ -178,7 +188,8 @@ class PopulationTraining:
         solved_s = [row["solved_s"] for row in rows if row["solved_s"] is not None]
         env_steps = sum(summary.env_steps for summary in summaries)
         result = {"task": self.cfg.task, "members": rows, "solved": len(solved_s),
-                  "train_time_s": round(self.train_time_s, 3), "setup_time_s": round(self.setup_time_s, 3),
+                  "train_time_s": round(self.train_time_s, 3), "evaluation_s": round(self.evaluation_s, 3),
+                  "setup_time_s": round(self.setup_time_s, 3),
                   "env_steps": env_steps, "env_steps_per_s": round(env_steps / self.train_time_s),
                   "num_envs": self.env.num_envs, "device": self.env.device,
                   "median_solved_s": statistics.median(solved_s) if solved_s else None}

@@ -141,7 +141,8 @@ class TaskRunner:
             self.evaluations.record(judged, solved, p, self.run_dir, self._write)
         self.report((self._first_iteration, it, self._end_iteration), stats, losses, self.learner.learning_rate,
                     self.learner.action_std, pace, judged and (judged.summary, judged.iteration, solved),
-                    run_eta_s(p, self._start, (self._first_iteration, it, self._end_iteration), self.evaluations))
+                    run_eta_s(p, self._start, (self._first_iteration, it, self._end_iteration), self.evaluations)
+                    if self.report.console else 0.0)
         if self.on_iteration is not None and self.ranks.writes:
             self.on_iteration(it, stats)
         wanted = self._stop_requested or ("solved" if solved and self.train_cfg.stop_when_solved else None)
