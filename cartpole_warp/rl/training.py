@@ -102,9 +102,7 @@ def finish_run(runner: TaskRunner, run_dir: Path, timing_s: dict[str, float], se
     last = next((h for h in reversed(progress.history) if h["episodes"]), {})
     evaluated = next((h for h in reversed(progress.history) if "evaluation" in h), None)
     summary = RunSummary(
-        status=runner.stop_reason or "completed",
-        iterations=progress.iterations,
-        env_steps=progress.env_steps,
+        status=runner.stop_reason or "completed", iterations=progress.iterations, env_steps=progress.env_steps,
         train_time_s=round(progress.train_time_s, 3),
         setup_time_s=round(setup_time_s, 3),
         env_steps_per_s=round(progress.env_steps / progress.train_time_s) if progress.train_time_s else None,
@@ -119,8 +117,7 @@ def finish_run(runner: TaskRunner, run_dir: Path, timing_s: dict[str, float], se
         best=progress.best,
         max_episode_length=runner.env.max_episode_length if cfg.env.task.has_time_limit else None,
         env_dt_s=cfg.env.sim.env_dt,
-        solved=progress.solved_at is not None,
-        solved_at=progress.solved_at,
+        solved=progress.solved_at is not None, solved_at=progress.solved_at,
         solved_definition=solved_definition(cfg),
         task=cfg.task,
         num_envs=cfg.env.num_envs * processes,
