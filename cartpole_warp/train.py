@@ -220,7 +220,8 @@ def train_population(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, a
         import torch
 
         from .rl.population import members_of
-        from .rl.population_training import MEMBERS_FILE, PopulationTraining
+        from .rl.population_training import PopulationTraining
+        from .rl.runs import MEMBERS_FILE
         from .rl.training import solved_definition
 
     if cfg.env.device != "cpu" and not torch.cuda.is_available():

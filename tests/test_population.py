@@ -14,8 +14,9 @@ from test_train_cli import only_run
 from cartpole_warp import tasks
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.population import members_of
-from cartpole_warp.rl.population_training import POPULATION_FILE, PopulationTraining
+from cartpole_warp.rl.population_training import PopulationTraining
 from cartpole_warp.rl.runner import TaskRunner
+from cartpole_warp.rl.runs import POPULATION_FILE
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]

@@ -25,10 +25,8 @@ from .policies import to_rsl_rl
 from .population import Member, MemberLearner, PopulationEvaluation, PopulationLearner, check_population
 from .progress import format_duration
 from .runner import TaskRunner
-from .runs import RunSummary, save_config
+from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary, save_config
 from .training import bytes_per_env, finish_run
-
-MEMBERS_FILE, POPULATION_FILE = "members.md", "population.json"
 
 
 def check_population_memory(cfg: TrainConfig, members: int, device: str):

@@ -35,6 +35,8 @@ TRAINER_DIR = "rsl_rl"
 """Folder under ``log_dir`` that holds the experiments (Isaac Lab's layout: logs/rsl_rl/<experiment>)."""
 BEST_CHECKPOINT = "model_best.pt"
 """The checkpoint whose evaluation was the best of the run (play.py's default)."""
+MEMBERS_FILE, POPULATION_FILE = "members.md", "population.json"
+"""A population's folder: its members' table and its own summary (each member a run folder beside them)."""
 _CHECKPOINT = re.compile(r"^model_(\d+)\.pt$")
 
 

@@ -6,6 +6,7 @@ costs.
     python -m cartpole_warp.tools.sweep --device cpu --seeds 0 1 2 3 4 \\
         --variants config=default config=isaac_lab "config=default agent.num-steps-per-env=32"
     python -m cartpole_warp.tools.sweep --task cartpole-swingup --device cuda:0 --play
+    python -m cartpole_warp.tools.sweep --task cartpole-swingup --device cuda:0 --seeds 0 1 2 3 --population
 
 A variant is train.py's flags written ``name=value`` (or ``name`` for a switch such as ``agent.no-cuda-graph``)
 without the dashes, several in one quoted string; a list value is comma-separated (``agent.actor.hidden-dims=64,64``).
@@ -40,7 +41,7 @@ import tyro
 
 from .. import tasks
 from ..cli import clean_errors
-from ..rl.runs import PLAY_DIR, SUMMARY_FILE, latest_checkpoint
+from ..rl.runs import PLAY_DIR, POPULATION_FILE, SUMMARY_FILE, latest_checkpoint
 from ..settings.config import ConfigError, require
 
 
@@ -71,6 +72,10 @@ class SweepArgs:
     fresh_process: bool = False
     """Run each training and play in a fresh Python process, as a user's ``python train.py`` does (its start-up
     included in the wall time), instead of in this one, which imports and compiles once for every run."""
+    population: bool = False
+    """Train each variant's seeds together, as one population (``train.py --seeds``: one process, one batched env;
+    a seed's seconds are then the population's until that member's verdict); a variant that cannot train as a
+    population (a camera task, ``--algorithm apg``, ...) runs its seeds one by one, and the sweep says why."""
 
 
 @dataclass
@@ -133,18 +138,47 @@ def run_script(script: str, flags: list[str], fresh_process: bool) -> subprocess
     return subprocess.CompletedProcess([script, *flags], code, out.getvalue(), err.getvalue())
 
 
+def train_flags(args: SweepArgs, variant: str, seeds: list[int], log_dir: Path) -> list[str]:
+    """train.py's flags for ``variant`` with one seed (a run) or several (a population)."""
+    seed_flags = ["--seed", str(seeds[0])] if len(seeds) == 1 else ["--seeds", *map(str, seeds)]
+    return ["--task", args.task, *variant_flags(variant), *seed_flags, "--device", args.device,
+            *(["--num-envs", str(args.num_envs)] if args.num_envs else []),
+            *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
+            "--logger", "none", "--log-dir", str(log_dir),
+            "--stop-when-solved" if args.stop_when_solved else "--no-stop-when-solved"]
+
+
 def run(args: SweepArgs, variant: str, seed: int, log_dir: Path) -> RunResult:
     """One training run (and play); its summary.json is the result."""
-    flags = ["--task", args.task, *variant_flags(variant), "--seed", str(seed), "--device", args.device,
-             *(["--num-envs", str(args.num_envs)] if args.num_envs else []),
-             *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else []),
-             "--logger", "none", "--log-dir", str(log_dir),
-             "--stop-when-solved" if args.stop_when_solved else "--no-stop-when-solved"]
+    flags = train_flags(args, variant, [seed], log_dir)
     done = run_script("train", flags, args.fresh_process)
     if done.returncode != 0:
         return RunResult(variant, seed, None, None, None,
                          error=f"train.py {' '.join(flags)} failed:\n{done.stdout[-1000:]}\n{done.stderr[-2000:]}")
     run_dir = max(log_dir.rglob(SUMMARY_FILE), key=lambda path: path.stat().st_mtime).parent
+    return result_of(args, variant, seed, run_dir)
+
+
+def run_population(args: SweepArgs, variant: str, log_dir: Path) -> list[RunResult] | str:
+    """The variant's seeds as one population (and play on each member's folder): a result per seed, or why the
+    variant cannot train as a population (train.py's one line)."""
+    flags = train_flags(args, variant, args.seeds, log_dir)
+    done = run_script("train", flags, args.fresh_process)
+    refusal = done.stderr.strip().removeprefix("error: ")
+    if done.returncode == 2 and "population" in refusal and len(refusal.splitlines()) == 1:
+        return refusal
+    if done.returncode != 0:
+        error = f"train.py {' '.join(flags)} failed:\n{done.stdout[-1000:]}\n{done.stderr[-2000:]}"
+        return [RunResult(variant, seed, None, None, None, error=error) for seed in args.seeds]
+    population = max(log_dir.rglob(POPULATION_FILE), key=lambda path: path.stat().st_mtime).parent
+    print(f"population of {_flags_cell(variant)}: {len(args.seeds)} members trained together in "
+          f"{json.loads((population / POPULATION_FILE).read_text())['train_time_s']:.1f} s", flush=True)
+    members = json.loads((population / POPULATION_FILE).read_text())["members"]
+    return [result_of(args, variant, member["seed"], population / member["member"]) for member in members]
+
+
+def result_of(args: SweepArgs, variant: str, seed: int, run_dir: Path) -> RunResult:
+    """A finished run's result from its summary.json (and play.py on it, where ``--play``)."""
     summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     solved = summary["solved_at"] or {}
     result = RunResult(variant, seed, solved.get("iterations"), solved.get("train_time_s"), summary["env_steps_per_s"],
@@ -246,8 +280,13 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as scratch:
         root = args.log_dir or Path(scratch)
         for number, variant in enumerate(args.variants):
-            for seed in args.seeds:
-                result = run(args, variant, seed, root / f"v{number}_s{seed}")
+            together = run_population(args, variant, root / f"v{number}_population") if args.population else None
+            if isinstance(together, str):
+                print(f"{_flags_cell(variant)} cannot train as a population ({together}): its seeds run one by one",
+                      flush=True)
+            for k, seed in enumerate(args.seeds):
+                result = together[k] if isinstance(together, list) else run(args, variant, seed,
+                                                                              root / f"v{number}_s{seed}")
                 results.append(result)
                 if result.error:
                     print(result.error, file=sys.stderr, flush=True)
