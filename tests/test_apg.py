@@ -102,3 +102,16 @@ def test_the_balance_trains_to_solved_by_backpropagation_and_plays(tmp_path):
     summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance", "--algorithm", "apg")
     assert summary["num_envs"] == tasks.get("cartpole-balance").apg_defaults["env"]["num_envs"]
     assert played["time_limit_fraction"] >= 0.95 and played["mean_reward_per_step"] >= 0.9
+
+
+def test_a_presets_settings_win_over_the_learners_and_flags_over_both():
+    """Precedence: the learner's defaults < the preset < the flags (``--config tutorial --algorithm apg`` built the
+    learner's 64 envs instead of the tutorial's one)."""
+    from cartpole_warp.train import resolve
+
+    chosen = tasks.get("cartpole-balance").apg_defaults
+    cfg = train_config("cartpole-balance", "tutorial", learner="apg")
+    assert cfg.env.num_envs == 1 != chosen["env"]["num_envs"], "the preset's env count"
+    assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"], "the learner's, the preset silent"
+    flagged, _, _ = resolve(["--config", "tutorial", "--algorithm", "apg", "--num-envs", "3"])
+    assert flagged.env.num_envs == 3 and flagged.agent.learner == "apg"

@@ -74,8 +74,8 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
     refuses a preset for another task; on ``device`` where given), then the dataclass defaults, the task's (with its
     ``gpu_defaults`` or ``cpu_defaults`` by the env's device, then its ``apg_defaults`` where ``learner`` (the flag)
-    or the preset says 'apg') and the preset's agent and run settings (flags may still change it: ``validate`` after
-    them)."""
+    or the preset says 'apg') and the whole preset again, so that a preset's setting wins over the task's and the
+    learner's choices (flags may still change it: ``validate`` after them)."""
     preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
     env = tasks.env_config(task, preset, preset_data=preset_data, device=device)
     cls = TrainConfig[type(env.task)]
@@ -85,9 +85,8 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     data = merge(data, device_defaults(base.task_spec, env.device))
     if (learner or preset_data.get("agent", {}).get("learner")) == "apg":
         data = merge(merge(data, base.task_spec.apg_defaults), {"agent": {"learner": "apg"}})
-    if preset is not None:
-        data = merge(data, overrides_dict({key: value for key, value in preset_data.items() if key != "env"},
-                                          f"preset {preset!r}:"))
+    if preset is not None:  # the preset over the task's and the learner's choices, its env section too
+        data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
 
 
