@@ -21,6 +21,15 @@ def write_stage_with_renamed_joint(path):
     stage.GetRootLayer().Save()
 
 
+@pytest.mark.parametrize("where", ["missing", "folder"])
+def test_a_missing_stage_or_a_folder_is_a_stage_error(tmp_path, where):
+    """Code that catches StageError catches every stage problem, these two included (they were ConfigError)."""
+    path = tmp_path / "missing.usda" if where == "missing" else tmp_path
+    with pytest.raises(cartpole_warp.StageError, match=re.escape(
+            f"USD stage {'not found' if where == 'missing' else 'is a folder'}: {path}")):
+        cartpole_warp.make_env(num_envs=2, sim={"stage_path": str(path)})
+
+
 def test_malformed_stage_and_missing_joint(tmp_path, device):
     garbage = tmp_path / "garbage.usda"
     garbage.write_text("#usda 1.0\nthis is not usd {")

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import warp as wp
 
-from ..settings.config import BYTES_PER_ENV, ConfigError, SimConfig
+from ..settings.config import BYTES_PER_ENV, ConfigError, SimConfig, StageError
 from .runtime import init_warp
 
 if TYPE_CHECKING:
@@ -33,10 +33,6 @@ concurrent replays of MuJoCo scenes abort."""
 
 FEATHERSTONE_MODULE = "newton._src.solvers.featherstone.kernels"
 """The Warp module of SolverFeatherstone's kernels."""
-
-
-class StageError(ConfigError):
-    """The USD stage is missing, unreadable or lacks the task's joints."""
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,10 @@ class ConfigError(ValueError):
     """A configuration value or preset is invalid; the message names it."""
 
 
+class StageError(ConfigError):
+    """The USD stage is missing, unreadable or lacks the task's joints."""
+
+
 @dataclass
 class SimConfig:
     """Physics: stage, solver and timing."""
@@ -294,7 +298,9 @@ class EnvConfig(Generic[TaskT]):
         range are checked where dicts become configs (``from_dict``); the checks here relate fields."""
         sim, limit_s = self.sim, self.task.episode_length_s
         check_device_name(self.device)
-        require(sim.stage_path is None or Path(sim.stage_path).is_file(), f"USD stage not found: {sim.stage_path}")
+        if sim.stage_path is not None and not Path(sim.stage_path).is_file():
+            raise StageError(f"USD stage {'is a folder' if Path(sim.stage_path).is_dir() else 'not found'}: "
+                             f"{sim.stage_path}")
         require(self.num_envs <= MAX_NUM_ENVS,
                 f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
                 f"(~{BYTES_PER_ENV / 1e3:.0f} kB per env); at most {MAX_NUM_ENVS:,} per process")
