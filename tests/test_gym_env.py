@@ -184,3 +184,15 @@ def test_wrong_action_count_is_a_clear_error(task):
 def test_an_env_count_for_the_single_env_says_where_it_belongs():
     with pytest.raises(ValueError, match=r"gymnasium env is one env; for 8 use gym.make_vec\(id, num_envs=N, "):
         gym.make("cartpole_warp/Cartpole-v0", num_envs=8)
+
+
+def test_an_unknown_keyword_is_a_type_error_and_the_vector_env_names_its_autoreset_mode():
+    """Clients probe with keywords of other envs and retry without them on a TypeError (TorchRL's ``GymEnv`` and
+    ``frameskip``), and read ``autoreset_mode`` off the vector env as gymnasium's own vector envs have it."""
+    with pytest.raises(TypeError, match="unexpected keyword argument 'frameskip'"):
+        gym.make("cartpole_warp/Cartpole-v0", frameskip=1)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'frameskip'"):
+        gym.make_vec("cartpole_warp/Cartpole-v0", num_envs=2, vectorization_mode="vector_entry_point", frameskip=1)
+    vector = gym.make_vec("cartpole_warp/Cartpole-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    assert vector.autoreset_mode == gym.vector.AutoresetMode.SAME_STEP == vector.metadata["autoreset_mode"]
+    vector.close()

@@ -13,6 +13,7 @@ spaces come from its sizes.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -21,6 +22,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 
 from .. import tasks
 from ..engine.env import BatchedEnv
+from ..settings.config import EnvConfig
 from ..settings.deprecation import renamed, renamed_attribute
 
 if TYPE_CHECKING:
@@ -47,6 +49,16 @@ def env_frames(env: BatchedEnv, render_mode: str | None):
     from ..viz.frames import EnvFrames
 
     return EnvFrames(env)
+
+
+def check_keywords(owner: str, overrides: dict):
+    """TypeError for a keyword that is no env-config section: Python's and gymnasium's answer to an unexpected
+    keyword argument, on which clients retry without it (TorchRL's ``GymEnv`` drops ``frameskip`` on a TypeError)."""
+    sections = {f.name for f in dataclasses.fields(EnvConfig)} - {"num_envs", "device", "seed"}
+    unknown = sorted(set(overrides) - sections - {"num_envs"})
+    if unknown:
+        raise TypeError(f"{owner}() got an unexpected keyword argument {unknown[0]!r} (beside the named arguments, "
+                        f"the env config's sections: {', '.join(sorted(sections))})")
 
 
 def render_metadata(env: BatchedEnv) -> dict:
@@ -90,6 +102,7 @@ class TaskGymEnv(gym.Env):
 
     def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str = "cpu",
                  seed: int | None = None, render_mode: str | None = None, **overrides):
+        check_keywords(type(self).__name__, overrides)
         if "num_envs" in overrides:
             raise ValueError(f"{task_name}'s gymnasium env is one env; for {overrides['num_envs']} use "
                              "gym.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point')")
@@ -152,11 +165,14 @@ class TaskVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int | None = None, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None,
                  device: str = "cpu", seed: int | None = None, render_mode: str | None = None, **overrides):
+        check_keywords(type(self).__name__, overrides)
         self.env = tasks.make(task_name, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **render_metadata(self.env)}
         self._frames = env_frames(self.env, render_mode)
         self.num_envs = self.env.num_envs
+        self.autoreset_mode = self.metadata["autoreset_mode"]
+        """As gymnasium's own vector envs have it (clients read the attribute, not the metadata)."""
         self.single_observation_space = self.env.single_observation_space
         self.single_action_space = self.env.single_action_space
         self.observation_space, self.action_space = self.env.observation_space, self.env.action_space
