@@ -85,7 +85,8 @@ def test_only_rank_zero_writes_the_run(tmp_path):
 
 @pytest.mark.parametrize("variables, flags, message", [
     ({"WORLD_SIZE": "2", "RANK": "0", "LOCAL_RANK": "0"}, ["--device", "cpu"], "needs --device cuda"),
-    ({"WORLD_SIZE": "16", "RANK": "15", "LOCAL_RANK": "15"}, ["--device", "cuda"], "torch sees no GPU on this host"),
+    ({"WORLD_SIZE": "16", "RANK": "15", "LOCAL_RANK": "15", "CUDA_VISIBLE_DEVICES": ""}, ["--device", "cuda"],
+     "torch sees no GPU on this host"),  # no GPU visible: on a GPU host too
 ])
 def test_torchrun_errors_are_one_line(repo, tmp_path, variables, flags, message):
     result = subprocess.run([sys.executable, str(repo / "train.py"), "--num-envs", "64", "--log-dir", str(tmp_path),
