@@ -3,11 +3,14 @@ play.py on this machine compiles nothing.
 
     python -m cartpole_warp.warmup                          # every task, on the CPU
     python -m cartpole_warp.warmup --device cuda:0 --task cartpole-balance
+    python -m cartpole_warp.warmup --device cuda:0 --gradients   # also what tools.sysid and --algorithm apg compile
     WARP_CACHE_PATH=/cache python -m cartpole_warp.warmup   # into another kernel cache (Warp reads the variable)
 
 Each task's env is built with one env and stepped once (every module its training and play load: Newton's solver and
 model kernels, the machinery's and the task's), then recorded for a step as play.py --headless does (Newton's USD
-viewer). Also installed as the command ``cartpole-warmup``.
+viewer); with ``--gradients`` also the state tasks' kernels with their adjoints (what ``tools.sysid``,
+``tools.gradcheck`` and ``--algorithm apg`` compile otherwise on their first run). Also installed as the command
+``cartpole-warmup``.
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ class WarmupArgs:
     """Newton solver whose kernels to compile (the tasks' default is featherstone)."""
     recording: bool = True
     """Also compile what play.py --headless records with (Newton's USD viewer)."""
+    gradients: bool = False
+    """Also compile the kernels with their adjoints that tools.sysid, tools.gradcheck and --algorithm apg run on
+    (state tasks: Newton's with adjoints and the differentiable rollout's), one backward pass each."""
 
 
 def warm_up(args: WarmupArgs) -> None:
@@ -53,8 +59,24 @@ def warm_up(args: WarmupArgs) -> None:
                 recorder(0)
                 recorder.close()
         env.close()
+        if args.gradients and not env.sees_images:
+            warm_up_gradients(name, args.device)
         print(f"{name}: ready on {env.device} in {time.perf_counter() - start:.1f} s", flush=True)
     print(f"Warp kernel cache: {wp.config.kernel_cache_dir}")
+
+
+def warm_up_gradients(name: str, device: str) -> None:
+    """One step of task ``name``'s differentiable rollout and its backward pass, on an env built with adjoints."""
+    import torch
+
+    from .gradients.rollout import DifferentiableRollout
+
+    env = tasks.make(name, num_envs=1, device=device, sim={"gradients": True})
+    rollout = DifferentiableRollout(env, horizon=1)
+    q, qd = env.joint_state()
+    actions = torch.zeros(1, 1, env.num_actions, device=env.device, requires_grad=True)
+    rollout(q, qd, actions=actions).rewards.sum().backward()
+    env.close()
 
 
 def main(argv: list[str] | None = None) -> int:

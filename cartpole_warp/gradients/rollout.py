@@ -34,6 +34,7 @@ import warp as wp
 from ..engine.env import BatchedEnv
 from ..engine.kernels import END_NONE, TaskFunctions, kernel_params, params_of
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, friction_force, write_env
+from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
 from ..engine.streams import StreamOrder
 
@@ -353,6 +354,7 @@ class DifferentiableRollout:
         """Calls so far: a result's backward must belong to the last one."""
         self.kernels = differentiable_kernels(env.functions, env.config_class, self.num_joints, self.num_actions,
                                               self.num_obs, f"{type(env).__module__}.{type(env).__qualname__}.grad")
+        load_modules([self.kernels.write_physics.module], self.device, "the differentiable rollout (with adjoints)")
         self.params = params_of(env.config_class, cfg.task)
         scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
                             requires_grad=True)
