@@ -150,8 +150,9 @@ def parse(cls: type[Args], default: Args, argv: list[str], description: str,
 
 def short_help(cls: type[Args], default: Args, description: str, aliases: dict[str, str], width: int = 100) -> str:
     """``description``, then the flags of the top level and the short flags (``aliases``: ``--num-envs`` for
-    ``--env.num-envs``): each with the first sentence of its help and its default, from the parser tyro builds
-    for ``--help-all`` (which lists the other flags, every config field, in groups)."""
+    ``--env.num-envs``), but those whose help starts with another flag (an option of that flag, e.g. "--video: env
+    steps per clip"): each with the first sentence of its help and its default, from the parser tyro builds for
+    ``--help-all`` (which lists the other flags, every config field, in groups)."""
     short_of = {flag: short for short, flag in aliases.items()}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # tyro 1.0 deprecates get_parser, not yet removed
@@ -162,8 +163,8 @@ def short_help(cls: type[Args], default: Args, description: str, aliases: dict[s
         short = [short_of.get(flag, flag) for flag in flags if "." not in flag or flag in short_of]
         if "-h" in action.option_strings:
             continue
-        if not short or action.help == argparse.SUPPRESS:
-            other += bool(flags)
+        if not short or action.help == argparse.SUPPRESS or (action.help or "").startswith("--"):
+            other += bool(flags)  # a config field, or an option of another flag ("--video: ..."): --help-all's
             continue
         metavar = f" {action.metavar}" if action.metavar and action.nargs != 0 else ""
         text = " ".join((action.help or "").split())

@@ -367,6 +367,9 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     train_help = run_main("train", "--help").stdout
     flag_lines = len(train_help.splitlines()) - len(tasks.names())  # a line per task beside the flags
     assert flag_lines <= 80, "train.py --help is for the common flags"
+    assert len(train_help.splitlines()) <= 80, "the common flags and the tasks fit 80 lines"
+    for option in ("--host", "--port", "--viewer-envs", "--viewer-interval-s", "--video-length", "--video-interval"):
+        assert f"\n  {option} " not in train_help and option in run_main("train", "--help-all").stdout, option
     presets = sorted(path.stem for path in (Path(__file__).parent.parent / "configs").glob("*.yaml"))
     assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
