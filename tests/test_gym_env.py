@@ -196,3 +196,24 @@ def test_an_unknown_keyword_is_a_type_error_and_the_vector_env_names_its_autores
     vector = gym.make_vec("cartpole_warp/Cartpole-v0", num_envs=2, vectorization_mode="vector_entry_point")
     assert vector.autoreset_mode == gym.vector.AutoresetMode.SAME_STEP == vector.metadata["autoreset_mode"]
     vector.close()
+
+
+def test_an_async_vector_env_of_a_camera_task_after_a_camera_env_does_not_hang():
+    """gymnasium's async vector env forks its workers (Linux's default); a camera env built before in the same process
+    used torch's OpenMP threads, which do not survive the fork: the workers' first reset waited forever."""
+    import subprocess
+    import sys
+
+    code = """
+import gymnasium as gym
+import cartpole_warp
+single = gym.make("cartpole_warp/CartpoleBalanceRGB-v0")
+single.reset(seed=0)
+vector = gym.make_vec("cartpole_warp/CartpoleBalanceRGB-v0", num_envs=2, vectorization_mode="async")
+obs, _ = vector.reset(seed=0)
+print(obs.shape)
+vector.close()
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip().endswith(", 64, 64)"), result.stdout

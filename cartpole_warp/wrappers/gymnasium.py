@@ -14,6 +14,7 @@ spaces come from its sizes.
 from __future__ import annotations
 
 import dataclasses
+import os
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -49,6 +50,20 @@ def env_frames(env: BatchedEnv, render_mode: str | None):
     from ..viz.frames import EnvFrames
 
     return EnvFrames(env)
+
+
+_IMPORTED_IN = os.getpid()
+"""The process that imported this module (a process forked from it inherits the number)."""
+
+
+def one_thread_if_forked():
+    """In a process forked from the one that imported this module (the workers of gymnasium's async vector env, by
+    default on Linux), torch runs on one thread: the parent's OpenMP threads do not survive a fork, and the first
+    parallel torch op in the child (a camera env's frames are large enough) would wait for them forever."""
+    if os.getpid() != _IMPORTED_IN:
+        import torch
+
+        torch.set_num_threads(1)
 
 
 def check_keywords(owner: str, overrides: dict):
@@ -103,6 +118,7 @@ class TaskGymEnv(gym.Env):
     def __init__(self, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str = "cpu",
                  seed: int | None = None, render_mode: str | None = None, **overrides):
         check_keywords(type(self).__name__, overrides)
+        one_thread_if_forked()
         if "num_envs" in overrides:
             raise ValueError(f"{task_name}'s gymnasium env is one env; for {overrides['num_envs']} use "
                              "gym.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point')")
@@ -166,6 +182,7 @@ class TaskVectorEnv(VectorEnv):
     def __init__(self, num_envs: int | None = None, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None,
                  device: str = "cpu", seed: int | None = None, render_mode: str | None = None, **overrides):
         check_keywords(type(self).__name__, overrides)
+        one_thread_if_forked()
         self.env = tasks.make(task_name, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **render_metadata(self.env)}
