@@ -153,13 +153,13 @@ TASK = register(Task(
               "agent": {"max_iterations": 500, "num_steps_per_env": 16,
                         "algorithm": {"entropy_coef": 0.02, "symmetry": False, "num_learning_epochs": 2},
                         "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},
-    # a GPU: an iteration ~40% cheaper with half the mini-batches, and an evaluation (~10 iterations there) at least
-    # every 50 iterations instead of 25 (docs/benchmarks.md)
+    # a GPU: half the mini-batches (a cheaper iteration), and an evaluation at least every 50 iterations instead of
+    # 25 (an evaluation costs several iterations there; docs/benchmarks.md)
     gpu_defaults={"agent": {"algorithm": {"num_mini_batches": 4}}, "eval": {"max_interval": 50}},
     # a CPU: 16 x 16 networks, each iteration cheaper and no more of them (seeds 0-9; docs/benchmarks.md)
     cpu_defaults={"agent": {"actor": {"hidden_dims": [16, 16]}, "critic": {"hidden_dims": [16, 16]}}},
-    # analytic policy gradients: wider networks than PPO's (seed 0 on an H200 at 286 iterations, 449 with 32 x 32), a
-    # budget of 1.5x the slowest seed that solved (733 iterations; docs/benchmarks.md)
+    # analytic policy gradients: wider networks than PPO's (fewer iterations to solved), a budget of 1.5x the slowest
+    # seed that solved (docs/benchmarks.md)
     apg_defaults=merge(APG_DEFAULTS, {"agent": {"max_iterations": 1100, "actor": {"hidden_dims": [64, 64]},
                                                 "critic": {"hidden_dims": [64, 64]}}}),
     gym_ids={"cartpole_warp/CartpoleSwingup-v0": None},

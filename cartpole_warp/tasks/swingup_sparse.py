@@ -27,7 +27,7 @@ register(dataclasses.replace(
     swingup.TASK, name="cartpole-swingup-sparse", env_class=CartpoleSwingupSparseEnv,
     summary="swing the pole up, rewarded only in dm_control's sparse band (its swingup_sparse)",
     solved=SolvedRule(min_reward_per_step=0.5, full_episodes_only=True),
-    # 1.5x the slowest seed measured (1325 iterations): the reward says nothing until the pole is in the band
+    # 1.5x the slowest seed measured (docs/benchmarks.md): the reward says nothing until the pole is in the band
     defaults=merge(swingup.TASK.defaults, {"agent": {"max_iterations": 2000}}),
     gpu_defaults={}, cpu_defaults={},  # its figures were measured without the smooth swing-up's device settings
     apg_defaults=APG_DEFAULTS,  # the swing-up's were not measured here
