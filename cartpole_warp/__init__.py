@@ -37,7 +37,7 @@ __all__ = ["BatchedEnv", "TaskGymEnv", "TaskVectorEnv", "ConfigError", "EnvConfi
            "TaskConfig", "make_env", "tasks"]
 
 __getattr__ = renamed(__name__, {"CartpoleGymEnv": "TaskGymEnv", "CartpoleVectorEnv": "TaskVectorEnv"})
-"""The old names (before they said what they serve), for one more release."""
+"""The old names (before they said what they serve), until ``settings.deprecation.REMOVED_IN``."""
 
 MOVED_MODULES = {
     **{f"{__name__}.{name}": f"{__name__}.engine.{name}"
@@ -49,6 +49,6 @@ MOVED_MODULES = {
     f"{__name__}.tasks.cartpole": f"{__name__}.tasks.cart_base",
 }
 """The modules' old paths (before the layers became folders, and the cart tasks' shared module, which is no task)
--> their new ones, for one more release; the old ``cartpole_warp.evaluation`` module's names are answered by the
-``evaluation`` package."""
+-> their new ones, until ``settings.deprecation.REMOVED_IN``; the old ``cartpole_warp.evaluation`` module's names are
+answered by the ``evaluation`` package."""
 alias_moved_modules(MOVED_MODULES)

@@ -93,3 +93,18 @@ def test_the_renamed_engine_and_evaluation_names_answer_for_a_release(module, ol
     loaded = importlib.import_module(f"cartpole_warp.{module}")
     with pytest.warns(DeprecationWarning, match=f"{module}.{old} is now {new}"):
         assert getattr(loaded, old) is getattr(loaded, new)
+
+
+def test_the_old_names_go_in_the_release_they_name():
+    """Every alias answered for a release says which one drops it (``REMOVED_IN``); once the package's version reaches
+    it this test fails: delete the aliases (``renamed``, ``renamed_attribute``, ``moved_names``, ``MOVED_MODULES``, the
+    ``evaluate=`` keyword) and this test."""
+    import importlib.metadata
+
+    from packaging.version import Version
+
+    from cartpole_warp.settings.deprecation import REMOVED_IN
+
+    assert Version(importlib.metadata.version("cartpole_warp")) < Version(REMOVED_IN)
+    with pytest.warns(DeprecationWarning, match=f"the old name goes in {REMOVED_IN}"):
+        assert importlib.import_module("cartpole_warp.rl.runner").CartpoleRunner.__name__ == "TaskRunner"

@@ -16,7 +16,7 @@ from typing import Any
 import warp as wp
 
 from ..settings.config import EnvConfig, TaskConfig
-from ..settings.deprecation import caller_level
+from ..settings.deprecation import REMOVED_IN, caller_level
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -83,12 +83,12 @@ class TaskFunctions:
     """``(action: Actions, p, forces: Joints) -> Joints``: ``forces`` (zero on every joint) with the generalised force
     (N or N m) of an action written on the joints it drives."""
     evaluate: InitVar[Any] = None
-    """The old name of ``reward_and_end``, for one more release (with a DeprecationWarning)."""
+    """The old name of ``reward_and_end``, until ``REMOVED_IN`` (with a DeprecationWarning)."""
 
     def __post_init__(self, evaluate: Any):
         if evaluate is not None:
             warnings.warn("TaskFunctions(evaluate=...) is now TaskFunctions(reward_and_end=...); the old name goes "
-                          "in a later release", DeprecationWarning, stacklevel=caller_level())
+                          f"in {REMOVED_IN}", DeprecationWarning, stacklevel=caller_level())
             object.__setattr__(self, "reward_and_end", evaluate)
         missing = [field.name for field in fields(self) if getattr(self, field.name) is None]
         if missing:

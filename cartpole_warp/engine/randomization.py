@@ -430,4 +430,4 @@ def add_friction(dofs_per_env: int, role_dof: wp.array(dtype=wp.int32), actuator
 
 
 __getattr__ = renamed(__name__, {"Physics": "PhysicalParams"})
-"""The old name, for one more release."""
+"""The old name, until ``settings.deprecation.REMOVED_IN``."""

@@ -138,4 +138,4 @@ class PhaseClock:
 
 
 __getattr__ = renamed(__name__, {"TorchOrder": "StreamOrder"})
-"""The old name, for one more release."""
+"""The old name, until ``settings.deprecation.REMOVED_IN``."""

@@ -4,4 +4,4 @@
 from ..settings.deprecation import moved_names
 
 __getattr__ = moved_names(__name__, f"{__name__}.rollouts")
-"""``cartpole_warp.evaluation`` was the rollouts' module: its names, for one more release."""
+"""``cartpole_warp.evaluation`` was the rollouts' module: its names, until ``settings.deprecation.REMOVED_IN``."""

@@ -218,4 +218,4 @@ def evaluate(run: FirstEpisodesRun, seed: int, rule: SolvedRule | None = None) -
 
 
 __getattr__ = renamed(__name__, {"NO_LIMIT_STEPS": "STEPS_WITHOUT_TIME_LIMIT"})
-"""The old name, for one more release."""
+"""The old name, until ``settings.deprecation.REMOVED_IN``."""

@@ -194,5 +194,5 @@ _moved = moved_names(__name__, f"{__package__}.policies")
 
 def __getattr__(name: str) -> object:
     """The old names (``CartpoleRunner``) and the policy functions that lived here (``load_policy``, ``to_rsl_rl``,
-    ...: now in ``rl.policies``), for one more release."""
+    ...: now in ``rl.policies``), until ``settings.deprecation.REMOVED_IN``."""
     return _renamed(name) if name == "CartpoleRunner" else _moved(name)

@@ -1,5 +1,5 @@
-"""Renamed public names and moved modules: the old one still works for a release, with a ``DeprecationWarning`` naming
-the new one."""
+"""Renamed public names and moved modules: the old one still works until ``REMOVED_IN``, with a ``DeprecationWarning``
+naming the new one."""
 
 import dataclasses
 import importlib
@@ -8,6 +8,9 @@ import importlib.util
 import sys
 import warnings
 from collections.abc import Callable
+
+REMOVED_IN = "0.2.0"
+"""The release that drops every old name and path answered here (a test fails once the package reaches it)."""
 
 
 def caller_level() -> int:
@@ -26,7 +29,7 @@ def renamed(module: str, names: dict[str, str]) -> Callable[[str], object]:
     def __getattr__(name: str) -> object:
         if name not in names:
             raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        warnings.warn(f"{module}.{name} is now {names[name]}; the old name goes in a later release", DeprecationWarning,
+        warnings.warn(f"{module}.{name} is now {names[name]}; the old name goes in {REMOVED_IN}", DeprecationWarning,
                       stacklevel=2)
         return getattr(sys.modules[module], names[name])
 
@@ -37,11 +40,11 @@ def renamed_attribute(old: str, new: str) -> property:
     """A class's property that answers the attribute ``old`` with ``new``."""
 
     def get(self) -> object:
-        warnings.warn(f"{type(self).__name__}.{old} is now .{new}; the old name goes in a later release",
+        warnings.warn(f"{type(self).__name__}.{old} is now .{new}; the old name goes in {REMOVED_IN}",
                       DeprecationWarning, stacklevel=2)
         return getattr(self, new)
 
-    return property(get, doc=f"The old name of ``{new}``, for one more release.")
+    return property(get, doc=f"The old name of ``{new}``, until {REMOVED_IN}.")
 
 
 def moved_names(module: str, new_module: str) -> Callable[[str], object]:
@@ -54,7 +57,7 @@ def moved_names(module: str, new_module: str) -> Callable[[str], object]:
         target = importlib.import_module(new_module)
         if not hasattr(target, name):
             raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        warnings.warn(f"{module}.{name} is now {new_module}.{name}; the old path goes in a later release",
+        warnings.warn(f"{module}.{name} is now {new_module}.{name}; the old path goes in {REMOVED_IN}",
                       DeprecationWarning, stacklevel=2)
         value = getattr(target, name)
         setattr(sys.modules[module], name, value)  # warned once: later lookups find it
@@ -75,7 +78,7 @@ class MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def create_module(self, spec):
         new = self.moves[spec.name]
-        warnings.warn(f"module {spec.name} is now {new}; the old path goes in a later release", DeprecationWarning,
+        warnings.warn(f"module {spec.name} is now {new}; the old path goes in {REMOVED_IN}", DeprecationWarning,
                       stacklevel=2)  # warnings skips the import machinery's frames: this points at the import
         module = importlib.import_module(new)
         spec.loader_state = module.__spec__

@@ -226,4 +226,4 @@ class TaskVectorEnv(VectorEnv):
     core = renamed_attribute("core", "env")
 
 __getattr__ = renamed(__name__, {"CartpoleGymEnv": "TaskGymEnv", "CartpoleVectorEnv": "TaskVectorEnv"})
-"""The old names (before they said what they serve), for one more release."""
+"""The old names (before they said what they serve), until ``settings.deprecation.REMOVED_IN``."""

@@ -118,4 +118,4 @@ class TaskSb3VecEnv(VecEnv):
         return [False] * self._count(indices)
 
 __getattr__ = renamed(__name__, {"CartpoleSb3VecEnv": "TaskSb3VecEnv"})
-"""The old names (before they said what they serve), for one more release."""
+"""The old names (before they said what they serve), until ``settings.deprecation.REMOVED_IN``."""
