@@ -51,9 +51,9 @@ NOT_FITTED_BY_DEFAULT = ("actuator_scale", "gravity_m_s2")
 together moves nothing (only their ratios are in the motion), and gravity is known."""
 EQUALLY_GOOD = 1.1
 """Guesses whose loss is within this factor of the best one's count as fitting as well."""
-INITIAL_DAMPING = 1e-2
-"""Levenberg-Marquardt's first damping (per guess: divided by 3 after a step that lowers the loss, times 4 after one
-that does not)."""
+INITIAL_LM_LAMBDA = 1e-2
+"""Levenberg-Marquardt's first lambda, the damping of its steps (per guess: divided by 3 after a step that lowers the
+loss, times 4 after one that does not)."""
 JACOBIAN_STEP = 1e-3
 """Forward-difference step of the Jacobian's columns (in units of each signal's spread, and of a log-parameter)."""
 IDENTIFIED_WITHIN = 0.01
@@ -240,7 +240,7 @@ def fit(args: SysidArgs) -> dict:
     print(f"{args.task}: {len(recording.time_s)} rows, {num_windows} windows of {horizon} steps x {guesses} guesses "
           f"= {n} envs on {device}; fitting {', '.join(names)}", flush=True)
     start = time.perf_counter()
-    damping = torch.full((guesses,), INITIAL_DAMPING, device=device)
+    lm_lambda = torch.full((guesses,), INITIAL_LM_LAMBDA, device=device)
     for it in range(args.iterations):
         # the exact gradient through the simulator (one backward pass), the Jacobian's columns by forward differences
         # (one batched rollout per starting-state coordinate and per parameter: the windows are independent envs)
@@ -252,13 +252,14 @@ def fit(args: SysidArgs) -> dict:
         r = r.detach()
         with torch.no_grad():
             a, b = jacobians(theta, starts_t, r)
-            lam = damping[guess_of]
+            lam = lm_lambda[guess_of]
             ata, atb, reduced, solve_ata = schur(a, b, lam, grad_starts[:, :, None])
-            shur = torch.zeros((guesses, len(names), len(names)), device=device).index_add_(0, guess_of, reduced)
-            shur += damping[:, None, None] * torch.eye(len(names), device=device)
+            reduced_normal = torch.zeros((guesses, len(names), len(names)), device=device).index_add_(
+                0, guess_of, reduced)
+            reduced_normal += lm_lambda[:, None, None] * torch.eye(len(names), device=device)
             rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
                 0, guess_of, (atb.transpose(1, 2) @ solve_ata[:, :, -1:]).squeeze(2))
-            step_theta = -torch.linalg.solve(shur, rhs)
+            step_theta = -torch.linalg.solve(reduced_normal, rhs)
             step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
             trial_theta, trial_starts = theta + step_theta, starts_t + step_starts.squeeze(2)
             trial_theta = torch.where(linear, trial_theta.clamp(min=0.0), trial_theta)
@@ -266,7 +267,7 @@ def fit(args: SysidArgs) -> dict:
             better = trial_loss < loss
             theta = torch.where(better[:, None], trial_theta, theta)
             starts_t = torch.where(better[guess_of][:, None], trial_starts, starts_t)
-            damping = torch.where(better, damping / 3, damping * 4).clamp(1e-9, 1e9)
+            lm_lambda = torch.where(better, lm_lambda / 3, lm_lambda * 4).clamp(1e-9, 1e9)
         print(f"  iteration {it + 1}/{args.iterations}: best loss {torch.minimum(loss, trial_loss).min().item():.3e} "
               f"({time.perf_counter() - start:.1f} s)", flush=True)
     with torch.no_grad():
@@ -275,11 +276,11 @@ def fit(args: SysidArgs) -> dict:
         best = int(losses.nan_to_num(nan=math.inf).argmin())  # a guess that diverged is never the best
         # standard errors: the noise's variance (the residual per degree of freedom) times the inverse of the
         # parameters' normal matrix (Gauss-Newton's, each window's start eliminated), for the best guess
-        rows_best = guess_of == best
+        best_guess_rows = guess_of == best
         a, b = jacobians(theta, starts_t, r)
-        normal = schur(a[rows_best], b[rows_best], torch.zeros(num_windows, device=device))[2].sum(dim=0)
+        normal = schur(a[best_guess_rows], b[best_guess_rows], torch.zeros(num_windows, device=device))[2].sum(dim=0)
         shared = sum(b - a == horizon for a, b in zip(starts, starts[1:]))  # rows two windows both hold
-        freedom = max(r[rows_best].numel() - shared * joints - len(names) - num_windows * 2 * joints, 1)
+        freedom = max(r[best_guess_rows].numel() - shared * joints - len(names) - num_windows * 2 * joints, 1)
         variance = 2 * float(losses[best]) / freedom
         # a direction the data do not see (an eigenvalue ~0) gives the parameters along it a huge error, not none
         eigenvalues, vectors = torch.linalg.eigh(normal.double())
@@ -293,8 +294,8 @@ def fit(args: SysidArgs) -> dict:
     standard_error = {name: float(error[k]) for k, name in enumerate(names)}
     good = (losses <= losses[best] * EQUALLY_GOOD).nonzero().flatten()
     window_error = angle_error(out.q.transpose(0, 1), recorded, hinge)
-    best_rows = slice(best * num_windows, (best + 1) * num_windows)
-    residual = window_error[best_rows].pow(2).mean(dim=(0, 1)).sqrt().cpu().numpy()
+    best_windows = slice(best * num_windows, (best + 1) * num_windows)
+    residual = window_error[best_windows].pow(2).mean(dim=(0, 1)).sqrt().cpu().numpy()
     result = {"task": args.task, "trajectory": str(args.trajectory), "seconds": round(seconds, 2),
               "windows": num_windows, "window_steps": horizon, "guesses": guesses, "loss": float(losses[best]),
               "stage": {name: stage[name] for name in names}, "fitted": fitted,
@@ -304,7 +305,7 @@ def fit(args: SysidArgs) -> dict:
               "residual_rms": {pos: float(r) for pos, r in zip(column_names(roles, sliders)[0], residual)}}
     report(result, len(good))
     output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
-    plot(output / "sysid_fit.png", recording, starts, out.q.detach()[:, best_rows].cpu().numpy(), dt,
+    plot(output / "sysid_fit.png", recording, starts, out.q.detach()[:, best_windows].cpu().numpy(), dt,
          column_names(roles, sliders)[0])
     write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
     preset = write_preset(output / "sysid_preset.yaml", args, stage, fitted, roles)
