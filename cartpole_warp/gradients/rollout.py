@@ -327,22 +327,28 @@ class ObserveFunction(torch.autograd.Function):
         return None, grad_of(rollout.q0), grad_of(rollout.qd0)
 
 
+def check_rollout(env: BatchedEnv, horizon: int):
+    """ValueError where ``env`` cannot be rolled out differentiably for ``horizon`` env steps."""
+    cfg = env.cfg
+    if cfg.sim.solver != "featherstone" or not cfg.sim.gradients:
+        raise ValueError("a differentiable rollout needs an env built with SolverFeatherstone and "
+                         "sim={'gradients': True} (Newton's kernels with their adjoints); got "
+                         f"sim.solver={cfg.sim.solver!r}, sim.gradients={cfg.sim.gradients}")
+    if env.sees_images:
+        raise ValueError("a differentiable rollout runs state tasks (the renderer has no adjoint); "
+                         f"{type(env).__name__} observes camera frames")
+    if horizon < 1:
+        raise ValueError(f"horizon must be >= 1 env step, got {horizon}")
+
+
 class DifferentiableRollout:
     """``horizon`` env steps of ``env``'s task for its ``num_envs`` envs, differentiable (module docstring). ``env``:
     a state task's env on the CPU or a GPU, built with ``sim={"gradients": True}`` and SolverFeatherstone; only its
     config, task functions and stage are used (its own buffers are not touched)."""
 
     def __init__(self, env: BatchedEnv, horizon: int):
+        check_rollout(env, horizon)
         cfg = env.cfg
-        if cfg.sim.solver != "featherstone" or not cfg.sim.gradients:
-            raise ValueError("a differentiable rollout needs an env built with SolverFeatherstone and "
-                             "sim={'gradients': True} (Newton's kernels with their adjoints); got "
-                             f"sim.solver={cfg.sim.solver!r}, sim.gradients={cfg.sim.gradients}")
-        if env.sees_images:
-            raise ValueError("a differentiable rollout runs state tasks (the renderer has no adjoint); "
-                             f"{type(env).__name__} observes camera frames")
-        if horizon < 1:
-            raise ValueError(f"horizon must be >= 1 env step, got {horizon}")
         self.num_envs, self.device, self.horizon = env.num_envs, env.device, horizon
         self.roles = env.joint_roles
         self.num_joints, self.num_actions, self.num_obs = len(self.roles), env.num_actions, env.num_obs
