@@ -183,8 +183,16 @@ print(sorted({{m.options["enable_backward"] for m in model_modules() + solver_mo
 
 @pytest.mark.slow
 def test_the_first_differentiable_rollout_says_it_compiles_and_warmup_gradients_compiles_it_ahead(tmp_path):
-    """A differentiable rollout (tools.sysid's, --algorithm apg's) into an empty kernel cache says that it compiles;
-    after ``warmup --gradients`` into another empty cache, the same rollout with its backward pass compiles nothing."""
+    """``warmup --gradients`` into an empty kernel cache builds a differentiable rollout (tools.sysid's, --algorithm
+    apg's), which says that it compiles; after it, the same rollout with its backward pass compiles nothing."""
+    cache = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / "cache")}
+    result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance", "--gradients",
+                             "--no-recording"], cwd=REPO, capture_output=True, text=True, timeout=900, env=cache)
+    assert result.returncode == 0, result.stderr
+    assert "compiling Warp kernels for the differentiable rollout (with adjoints) on cpu" in result.stdout
+    folder = tmp_path / "cache" / os.listdir(tmp_path / "cache")[0]
+    filled = sorted(p.name for p in folder.iterdir())
+    assert any(".grad" in name for name in filled), filled
     code = """
 import torch
 import cartpole_warp
@@ -196,21 +204,8 @@ q, qd = env.joint_state()
 actions = torch.zeros(1, 1, 1, requires_grad=True)
 DifferentiableRollout(env, horizon=1)(q, qd, actions=actions).rewards.sum().backward()
 """
-    cold = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / "cold")}
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=900,
-                            env=cold)
-    assert result.returncode == 0, result.stderr
-    assert "compiling Warp kernels for the differentiable rollout (with adjoints) on cpu" in result.stdout
-
-    warm = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / "warm")}
-    result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance", "--gradients",
-                             "--no-recording"], cwd=REPO, capture_output=True, text=True, timeout=900, env=warm)
-    assert result.returncode == 0, result.stderr
-    cache = tmp_path / "warm" / os.listdir(tmp_path / "warm")[0]
-    filled = sorted(p.name for p in cache.iterdir())
-    assert any(".grad" in name for name in filled), filled
-    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=900,
-                            env=warm)
+                            env=cache)
     assert result.returncode == 0, result.stderr
     assert "compiling" not in result.stdout, result.stdout
-    assert sorted(p.name for p in cache.iterdir()) == filled, "the rollout and its backward compiled nothing new"
+    assert sorted(p.name for p in folder.iterdir()) == filled, "the rollout and its backward compiled nothing new"
