@@ -30,7 +30,7 @@ from ..engine.streams import PhaseClock, TorchGraph
 from ..evaluation.rollouts import FirstEpisodes, FirstEpisodesRun, whole_episode_steps
 from ..evaluation.statistics import EpisodeStats, EpisodeSummary, SolvedRule, summary_of
 from ..settings.config import ConfigError
-from ..wrappers.rsl_rl import RslRlVecEnv
+from ..wrappers.rsl_rl import RslRlVecEnv, mirror
 from .config import TrainConfig
 from .policies import build_networks
 from .population_ppo import ADAM_BETAS, ADAM_EPS, BatchedActorCritic, PopulationPPO
@@ -177,8 +177,10 @@ class PopulationLearner:
         """The latest iteration's figures (``read``)."""
 
     def _mirror(self, obs: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The task's mirror images after the originals (``wrappers.rsl_rl.mirror``'s, on flat tensors)."""
-        return (torch.cat([obs, obs * self.env.obs_mirror]), torch.cat([actions, actions * self.env.action_mirror]))
+        """The task's mirror images after the originals: ``wrappers.rsl_rl.mirror`` (rsl-rl's augmentation), on flat
+        tensors."""
+        mirrored, actions = mirror(self.env, TensorDict({"policy": obs}, batch_size=obs.shape[:1]), actions)
+        return mirrored["policy"], actions
 
     def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict[str, torch.Tensor]]:
         """One iteration of every member: the last observations and the (K,) losses out."""
