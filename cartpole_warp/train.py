@@ -227,15 +227,25 @@ def train_population(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, a
     if cfg.env.device != "cpu" and not torch.cuda.is_available():
         raise ConfigError(NO_CUDA.format(cfg.env.device))
     members = members_of(args.population.seeds, args.population.vary)
-    print(f"building {len(members)} members x {cfg.env.num_envs} envs on {cfg.env.device}...", flush=True)
-    training = PopulationTraining(cfg, members, run_dir, timing_s)
-    print(f"population folder: {run_dir}; ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
-          f"{solved_definition(cfg)}", flush=True)
-    result = training.run()
-    print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "
-          f"trained {result['env_steps']:,} env steps in {result['train_time_s']:.1f} s "
-          f"({result['env_steps_per_s']:,} steps/s)\nwatch one: python play.py --headless --run "
-          f"{run_dir / members[0].name}")
+    ranks = Ranks.from_environment()
+    where = f"{ranks.world_size} processes" if ranks.distributed else cfg.env.device
+    if ranks.writes:
+        print(f"building {len(members)} members x {cfg.env.num_envs} envs on {where}...", flush=True)
+    try:
+        training = PopulationTraining(cfg, members, run_dir, timing_s, ranks)
+        run_dir = training.run_dir  # rank 0's, in a torchrun job
+        if ranks.writes:
+            print(f"population folder: {run_dir}; ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
+                  f"{solved_definition(cfg)}", flush=True)
+        result = training.run()
+    finally:
+        if torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
+    if ranks.writes:
+        print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "
+              f"trained {result['env_steps']:,} env steps in {result['train_time_s']:.1f} s "
+              f"({result['env_steps_per_s']:,} steps/s)\nwatch one: python play.py --headless --run "
+              f"{run_dir / members[0].name}")
     return 130 if training.interrupted else 0
 
 

@@ -41,6 +41,19 @@ def test_each_process_takes_its_gpu_and_seed_plus_rank_and_keeps_every_other_set
         Ranks(4, 2, 2).env_config(env, cuda_devices=2)
 
 
+def test_a_populations_members_are_shared_out_in_order_and_each_process_takes_its_gpu():
+    members = list("abcde")
+    assert [Ranks(2, rank, rank).share(members) for rank in (0, 1)] == [["a", "b"], ["c", "d", "e"]]
+    assert [Ranks(5, rank, 0).share(members) for rank in range(5)] == [[m] for m in members]
+    assert Ranks().share(members) == members
+    with pytest.raises(ConfigError, match="5 members cannot be spread over 6 processes"):
+        Ranks(6, 0, 0).share(members)
+    assert Ranks(2, 1, 1).device("cuda", cuda_devices=2) == "cuda:1" and Ranks(2, 1, 1).device("cpu", 0) == "cpu"
+    assert Ranks().device("cuda:3", cuda_devices=4) == "cuda:3"
+    with pytest.raises(ConfigError, match="host has 1 CUDA device"):
+        Ranks(2, 1, 1).device("cuda", cuda_devices=1)
+
+
 @pytest.mark.parametrize("wanted", [None, "solved", "interrupted"])
 def test_a_process_alone_stops_as_it_wishes(wanted):
     assert joint_stop(wanted, "cpu", distributed=False) == wanted

@@ -5,6 +5,8 @@ member gone non-finite ends alone, bad population inputs are one line each; and 
 
 import dataclasses
 import json
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -106,6 +108,25 @@ def test_a_members_run_folder_plays_and_resumes_as_a_solo_run(tmp_path):
     assert len(steps) == len(before) == 1 and steps.pop() > before.pop() > 0, "Adam's steps carried over the resume"
 
 
+def test_torchrun_spreads_the_members_over_its_processes_and_each_share_trains_as_a_population_alone(repo, tmp_path):
+    flags = ["--device", "cpu", "--num-envs", "16", "--max-iterations", "2", "--logger", "none"]
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
+               str(repo / "train.py"), "--seeds", "4", "9", "2", *flags, "--log-dir", str(tmp_path / "spread")]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "rank 0: it 2/2 | 1 running" in result.stdout and "rank 1: it 2/2 | 2 running" in result.stdout
+    (run,) = (tmp_path / "spread").rglob(POPULATION_FILE)
+    table = json.loads(run.read_text())
+    assert [row["member"] for row in table["members"]] == ["seed4", "seed9", "seed2"]
+    assert table["processes"] == 2 and table["num_envs"] == 48 and result.stdout.count("| completed |") == 3
+    alone = call_main("train", "--seeds", "9", "2", *flags, "--log-dir", tmp_path / "alone")
+    assert alone.returncode == 0, alone.stdout + alone.stderr
+    for member in ("seed9", "seed2"):  # rank 1's share, as a population of its own in one process
+        spread, solo = (torch.load(next(root.rglob(f"{member}/model_1.pt")), weights_only=False)["actor_state_dict"]
+                        for root in (tmp_path / "spread", tmp_path / "alone"))
+        assert all(torch.allclose(spread[name], solo[name], atol=1e-6) for name in solo), member
+
+
 @pytest.mark.parametrize(("flags", "message"), [
     (["--population.vary", "agent.algorithm.gamma=0.9"], "a population needs seeds: --seeds 0 1 2"),
     (["--seeds", "1", "2", "1"], "--seeds names seed 1 twice"),
@@ -128,6 +149,17 @@ def test_every_state_task_trains_a_population(tmp_path, task):
     assert [row["iterations"] for row in result["members"]] == [2, 2]
     assert all(row["status"] == "completed" for row in result["members"])
     assert torch.isfinite(training.learner.ppo.model.params).all()
+
+
+def test_a_task_that_evaluates_inside_the_step_on_a_gpu_trains_a_population_judged_on_envs_of_its_own(tmp_path):
+    cfg = train_config("cart-three-pole-swingup")
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 8, DEVICE, "none", 1
+    cfg.eval.in_step, cfg.eval.num_envs = True, 4  # the task's GPU default
+    training = PopulationTraining(cfg, members_of([0, 1]), tmp_path)
+    assert training.env.num_envs == 16 and training.env.evaluation is None, "no evaluation envs in the training's env"
+    assert training.evaluation.env.num_envs == 8
+    assert [row["iterations"] for row in training.run()["members"]] == [1, 1]
+    assert "in_step: false" in (tmp_path / "seed1" / "config.yaml").read_text()
 
 
 @pytest.mark.parametrize("task", ["cartpole-swingup", "cartpole-balance"])

@@ -85,6 +85,8 @@ def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_and_training_stop
 
     events = EventAccumulator(str(training.run_dir)).Reload()
     assert [(e.step, e.value) for e in events.Scalars("Eval/time_limit_fraction")] == [(2, 1.0)], "TensorBoard"
+    assert [e.step for e in events.Scalars("Perf/total_fps")] == [0, 1, 2], "every iteration's scalars"
+    assert events.Tags()["scalars"] and set(events.Tags()["scalars"]) >= {"Loss/learning_rate", "Policy/mean_std"}
 
 
 def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path):

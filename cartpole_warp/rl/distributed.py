@@ -6,7 +6,10 @@ all processes take together.
 rsl-rl does the data-parallel PPO itself (``OnPolicyRunner`` reads ``WORLD_SIZE``/``RANK``/``LOCAL_RANK``, creates the
 NCCL process group, broadcasts the parameters from rank 0, all-reduces the gradients); this module adds the rest:
 ``cuda:$LOCAL_RANK`` and seed + rank per process, one run folder written by rank 0 alone, episode statistics summed
-over all processes, and one stop decision for all of them.
+over all processes, and one stop decision for all of them. A population (``train.py --seeds``) spreads its members
+over the processes instead: each trains its share, and rank 0 writes the population's table.
+
+    torchrun --nproc_per_node=2 train.py --device cuda --seeds 0 1 2 3 4 5 6 7          # four members on each GPU
 """
 
 from __future__ import annotations
@@ -56,13 +59,28 @@ class Ranks:
         if not env.device.startswith("cuda"):
             raise ConfigError(f"training on {self.world_size} processes (torchrun) needs --device cuda, got "
                               f"{env.device!r}; run a single process for the CPU")
+        return dataclasses.replace(env, device=self.device(env.device, cuda_devices), seed=env.seed + self.rank)
+
+    def device(self, device: str, cuda_devices: int) -> str:
+        """This process's device for ``device``: ``cuda:$LOCAL_RANK`` for a CUDA device when distributed (ConfigError
+        where the host has fewer GPUs than processes), else ``device``."""
+        if not self.distributed or not device.startswith("cuda"):
+            return device
         if cuda_devices == 0:
             raise ConfigError(f"training on {self.world_size} processes (torchrun) needs a CUDA GPU per process, but "
                               "torch sees no GPU on this host; run a single process with --device cpu instead")
         if self.local_rank >= cuda_devices:
             raise ConfigError(f"process {self.local_rank} of this host needs cuda:{self.local_rank}, but the host has "
                               f"{cuda_devices} CUDA device(s): start at most {cuda_devices} processes per node")
-        return dataclasses.replace(env, device=f"cuda:{self.local_rank}", seed=env.seed + self.rank)
+        return f"cuda:{self.local_rank}"
+
+    def share(self, items: list) -> list:
+        """This process's consecutive share of ``items`` (shares differ in length by at most one; ConfigError where
+        there are fewer items than processes)."""
+        if len(items) < self.world_size:
+            raise ConfigError(f"{len(items)} members cannot be spread over {self.world_size} processes (torchrun): "
+                              "each process needs at least one")
+        return items[self.rank * len(items) // self.world_size:(self.rank + 1) * len(items) // self.world_size]
 
 
 SINGLE_PROCESS = Ranks()
@@ -81,6 +99,38 @@ def join_process_group(ranks: Ranks, device: str) -> dict | None:
     torch.distributed.init_process_group(backend="nccl", rank=ranks.rank, world_size=ranks.world_size)
     torch.cuda.set_device(ranks.local_rank)
     return {"global_rank": ranks.rank, "local_rank": ranks.local_rank, "world_size": ranks.world_size}
+
+
+def join_population_group(ranks: Ranks):
+    """Join torchrun's process group for a population (``rl.population_training``): gloo, on any device, since its
+    members exchange no gradients, only their run folder's name at the start and their table rows at the end."""
+    if not ranks.distributed:
+        return
+    import torch
+
+    torch.distributed.init_process_group(backend="gloo", rank=ranks.rank, world_size=ranks.world_size)
+
+
+def from_rank_zero(value, ranks: Ranks):
+    """Rank 0's ``value`` in every process (a process alone keeps its own)."""
+    if not ranks.distributed:
+        return value
+    import torch
+
+    holder = [value]
+    torch.distributed.broadcast_object_list(holder, src=0)
+    return holder[0]
+
+
+def from_every_rank(value, ranks: Ranks) -> list:
+    """Every process's ``value``, by rank, in every process."""
+    if not ranks.distributed:
+        return [value]
+    import torch
+
+    values = [None] * ranks.world_size
+    torch.distributed.all_gather_object(values, value)
+    return values
 
 
 def joint_stop(wanted: str | None, device: str, distributed: bool) -> str | None:

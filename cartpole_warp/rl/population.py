@@ -104,7 +104,6 @@ def check_population(cfg: TrainConfig, members: list[Member]):
         "a task that observes camera frames (the population's networks are MLPs)": cfg.env.camera.enabled,
         "agent.algorithm.use_mixed_precision": cfg.agent.algorithm.use_mixed_precision,
         "agent.torch_compile_mode": cfg.agent.torch_compile_mode is not None,
-        "eval.in_step (members evaluate on envs of their own)": cfg.eval.in_step,
         "console rsl_rl (the population prints its own lines)": cfg.console == "rsl_rl",
     }
     named = [what for what, present in problems.items() if present]

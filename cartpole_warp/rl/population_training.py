@@ -15,12 +15,14 @@ import statistics
 import time
 from pathlib import Path
 
+import torch
+
 from ..engine.runtime import free_memory_bytes, resolve_device, timed
 from ..settings.config import ConfigError
 from ..settings.files import write_text
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
-from .distributed import Ranks
+from .distributed import SINGLE_PROCESS, Ranks, from_every_rank, from_rank_zero, join_population_group
 from .policies import to_rsl_rl
 from .population import Member, MemberLearner, PopulationEvaluation, PopulationLearner, check_population
 from .progress import format_duration
@@ -46,16 +48,27 @@ def check_population_memory(cfg: TrainConfig, members: int, device: str):
 
 class PopulationTraining:
     """The population of ``members`` of ``cfg``'s task in ``run_dir``: member k trains on envs [k N, (k+1) N) of one
-    env of K x N envs (N = ``env.num_envs``) and writes an ordinary run folder, ``run_dir / member.name``."""
+    env of K x N envs (N = ``env.num_envs``) and writes an ordinary run folder, ``run_dir / member.name``. In a
+    torchrun job (``ranks``, default: torchrun's) each process trains its share of the members on its own GPU
+    (``cuda:$LOCAL_RANK``), in rank 0's ``run_dir``; rank 0 writes the population's table."""
 
     def __init__(self, cfg: TrainConfig, members: list[Member], run_dir: Path,
-                 timing_s: dict[str, float] | None = None):
+                 timing_s: dict[str, float] | None = None, ranks: Ranks | None = None):
         cfg = cfg.validate()
+        self.ranks = ranks if ranks is not None else Ranks.from_environment()
+        self.prefix = f"rank {self.ranks.rank}: " if self.ranks.distributed else ""
+        """Before each console line of this process."""
+        if cfg.eval.in_step:  # a task's GPU default for long runs, made for one run's envs
+            print(f"{self.prefix}note: a population judges its members on envs of their own, not inside the "
+                  "training's step (eval.in_step)", flush=True)
+            cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, in_step=False))
         check_population(cfg, members)
-        if Ranks.from_environment().distributed:
-            raise ConfigError("a population trains in one process: run train.py --seeds without torchrun")
-        device = resolve_device(cfg.env.device)
+        self.all_members, members = members, self.ranks.share(members)
+        device = resolve_device(self.ranks.device(cfg.env.device, torch.cuda.device_count()))
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
         check_population_memory(cfg, len(members), device)
+        join_population_group(self.ranks)
+        run_dir = from_rank_zero(Path(run_dir), self.ranks)
         start = time.perf_counter()
         self.cfg, self.members, self.run_dir = cfg, members, Path(run_dir)
         self.timing_s = dict(timing_s or {})
@@ -73,7 +86,8 @@ class PopulationTraining:
             self.runners = []
             for k, (member, member_cfg) in enumerate(zip(members, self.cfgs)):
                 learner = MemberLearner(self.learner, k)
-                runner = TaskRunner(learner.env, member_cfg, self.run_dir / member.name, learner=learner)
+                runner = TaskRunner(learner.env, member_cfg, self.run_dir / member.name, learner=learner,
+                                    ranks=SINGLE_PROCESS)
                 runner.report.console = False
                 save_config(self.run_dir / member.name, member_cfg)
                 self.runners.append(runner)
@@ -81,6 +95,8 @@ class PopulationTraining:
             eval_env = task.env_class(dataclasses.replace(cfg.env, num_envs=len(members) * cfg.eval.num_envs))
             self.evaluation = PopulationEvaluation(eval_env, self.learner, [m.seed for m in members], task.solved)
         self.evaluation_s = 0.0
+        self.iteration_s: list[float] = []
+        """Each iteration's wall seconds, its members' evaluations, checkpoints and lines included."""
         self.setup_time_s = time.perf_counter() - start
         self.interrupted = False
 
@@ -88,8 +104,8 @@ class PopulationTraining:
         if self.interrupted:
             raise KeyboardInterrupt
         self.interrupted = True
-        print("\nstopping every member after this iteration and saving (Ctrl-C again aborts without saving)",
-              flush=True)
+        print(f"\n{self.prefix}stopping every member after this iteration and saving (Ctrl-C again aborts without "
+              "saving)", flush=True)
 
     def run(self) -> dict:
         """Train every member until its own stop (solved with ``stop_when_solved``, non-finite networks, Ctrl-C) or
@@ -113,7 +129,7 @@ class PopulationTraining:
         for runner in self.runners:
             runner.start(iterations, self.cfg.agent.init_at_random_ep_len)
         obs, running = self.env.get_observations(), list(range(len(self.members)))
-        loop_start = time.perf_counter()
+        loop_start = tick = time.perf_counter()
         for it in range(iterations):
             obs, losses = self.learner.iteration(obs, it)
             readout = self.learner.read(losses)
@@ -123,8 +139,8 @@ class PopulationTraining:
                 runner = self.runners[k]
                 if not finite[k]:
                     runner.stop_reason = "non-finite"
-                    print(f"  {self.members[k].name}: its networks went non-finite in iteration {it + 1}; it ends "
-                          "here, the others go on", flush=True)
+                    print(f"{self.prefix}  {self.members[k].name}: its networks went non-finite in iteration {it + 1}; "
+                          "it ends here, the others go on", flush=True)
                 elif self.interrupted:
                     runner.request_stop("interrupted")
                 if runner.stop_reason is not None or runner.after_iteration(it, readout.losses[k]):
@@ -132,7 +148,9 @@ class PopulationTraining:
                     self.learner.ppo.active[k] = False
                     runner.finish()
                 self._judged_line(k)
-            print(self._line(it, iterations, running, time.perf_counter() - loop_start), flush=True)
+            print(self.prefix + self._line(it, iterations, running, time.perf_counter() - loop_start), flush=True)
+            self.iteration_s.append(time.perf_counter() - tick)
+            tick = time.perf_counter()
             if not running:
                 break
         for k in running:
@@ -158,8 +176,8 @@ class PopulationTraining:
             return
         metric = self.cfg.task_spec.play_metric
         policy = evaluation.get("policy_iteration", history[-1]["iteration"]) + 1
-        print(f"  {self.members[k].name}: eval of it {policy}'s policy {metric} {evaluation[metric] or 0.0:.3f}"
-              f"{': SOLVED' if history[-1]['solved'] else ''}", flush=True)
+        print(f"{self.prefix}  {self.members[k].name}: eval of it {policy}'s policy {metric} "
+              f"{evaluation[metric] or 0.0:.3f}{': SOLVED' if history[-1]['solved'] else ''}", flush=True)
 
     def _line(self, it: int, iterations: int, running: list[int], elapsed_s: float) -> str:
         """The population's console line after iteration ``it``."""
@@ -173,8 +191,10 @@ class PopulationTraining:
                 f"{len(self.members)}{spread} | {steps_per_s / 1e6:6.2f}M steps/s | ETA {format_duration(eta)}")
 
     def _write(self, summaries: list[RunSummary]) -> dict:
-        """``members.md`` and ``population.json``: per member its seed, settings, status, iterations and seconds to
-        solved and the play metric of the verdict; the population's wall time and env steps."""
+        """``members.md`` and ``population.json`` (rank 0 writes them; every process returns the whole): per member its
+        seed, settings, status, iterations and seconds to solved and the play metric of the verdict; the population's
+        wall time (its slowest process's), env steps, and the pace of its median iterations (between evaluations and
+        checkpoints; summed over the processes)."""
         metric = self.cfg.task_spec.play_metric
         rows = []
         for member, summary in zip(self.members, summaries):
@@ -183,16 +203,32 @@ class PopulationTraining:
                          "status": summary.status, "solved_iterations": solved.get("iterations"),
                          "solved_s": solved.get("train_time_s"), metric: solved.get(metric),
                          "iterations": summary.iterations, "train_time_s": summary.train_time_s})
+        median_s = statistics.median(self.iteration_s) if self.iteration_s else None
+        parts = from_every_rank({"rows": rows, "train_time_s": self.train_time_s, "evaluation_s": self.evaluation_s,
+                                 "setup_time_s": self.setup_time_s, "num_envs": self.env.num_envs,
+                                 "env_steps": sum(summary.env_steps for summary in summaries),
+                                 "median_iteration_s": median_s,
+                                 "iteration_env_steps": self.env.num_envs * self.cfg.agent.num_steps_per_env},
+                                self.ranks)
+        rows = [row for part in parts for row in part["rows"]]
         solved_s = [row["solved_s"] for row in rows if row["solved_s"] is not None]
-        env_steps = sum(summary.env_steps for summary in summaries)
+        train_time_s, env_steps = max(part["train_time_s"] for part in parts), sum(part["env_steps"] for part in parts)
+        medians = [part["median_iteration_s"] for part in parts]
+        paced = None not in medians
         result = {"task": self.cfg.task, "members": rows, "solved": len(solved_s),
-                  "train_time_s": round(self.train_time_s, 3), "evaluation_s": round(self.evaluation_s, 3),
-                  "setup_time_s": round(self.setup_time_s, 3),
-                  "env_steps": env_steps, "env_steps_per_s": round(env_steps / self.train_time_s),
-                  "num_envs": self.env.num_envs, "device": self.env.device,
+                  "train_time_s": round(train_time_s, 3),
+                  "evaluation_s": round(max(part["evaluation_s"] for part in parts), 3),
+                  "setup_time_s": round(max(part["setup_time_s"] for part in parts), 3),
+                  "env_steps": env_steps, "env_steps_per_s": round(env_steps / train_time_s),
+                  "median_iteration_s": round(max(medians), 5) if paced else None,
+                  "median_iteration_env_steps_per_s": round(sum(part["iteration_env_steps"] / part["median_iteration_s"]
+                                                                for part in parts)) if paced else None,
+                  "num_envs": sum(part["num_envs"] for part in parts), "device": self.env.device,
+                  "processes": self.ranks.world_size,
                   "median_solved_s": statistics.median(solved_s) if solved_s else None}
-        write_text(self.run_dir / POPULATION_FILE, json.dumps(result, indent=2) + "\n")
-        write_text(self.run_dir / MEMBERS_FILE, members_table(rows, metric))
+        if self.ranks.writes:
+            write_text(self.run_dir / POPULATION_FILE, json.dumps(result, indent=2) + "\n")
+            write_text(self.run_dir / MEMBERS_FILE, members_table(rows, metric))
         return result
 
 

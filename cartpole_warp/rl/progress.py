@@ -143,6 +143,20 @@ def history_entry(progress, it: int, stats: EpisodeSummary, pace: Pace, judged, 
     return entry
 
 
+def write_scalars(writer, scalars: dict[str, float], step: int):
+    """``scalars`` at ``step`` through rsl-rl's metrics ``writer``: into TensorBoard's event file as one event (a
+    population writes each of its members' every iteration; ``add_scalar`` makes an event per scalar), into any other
+    writer (wandb, neptune, none) scalar by scalar."""
+    if type(writer).__module__ != "torch.utils.tensorboard.writer":  # rsl-rl's tensorboard writer is torch's own
+        for tag, value in scalars.items():
+            writer.add_scalar(tag, value, step)
+        return
+    from tensorboard.compat.proto.summary_pb2 import Summary  # imported by the writer already
+
+    values = [Summary.Value(tag=tag, simple_value=float(value)) for tag, value in scalars.items()]
+    writer._get_file_writer().add_summary(Summary(value=values), step)
+
+
 class Report:
     """Where each iteration of a run of ``cfg`` on ``env`` is reported: rsl-rl's ``logger`` (its own console with
     ``console: rsl_rl``, else its metrics writer: TensorBoard, wandb or none, in ``log_dir``; None writes nothing) and,
@@ -174,8 +188,11 @@ class Report:
         if self.logger.writer is not None:
             scalars = metrics(stats, evaluation, losses, learning_rate, action_std.mean().item(), pace.steps_per_s,
                               pace.collect_s, pace.learn_s)
-            for tag, value in scalars.items():  # an evaluation at the iteration of the policy it judged
-                self.logger.writer.add_scalar(tag, value, judged_iteration if tag.startswith("Eval/") else it)
+            by_step: dict[int, dict[str, float]] = {}  # an evaluation at the iteration of the policy it judged
+            for tag, value in scalars.items():
+                by_step.setdefault(judged_iteration if tag.startswith("Eval/") else it, {})[tag] = value
+            for step, step_scalars in by_step.items():
+                write_scalars(self.logger.writer, step_scalars, step)
         if self.console:
             print(self.line(it, first, end, stats, pace.steps_per_s, evaluation, solved, eta, judged_iteration),
                   flush=True)

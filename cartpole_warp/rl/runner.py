@@ -40,12 +40,13 @@ from .runs import Progress
 class TaskRunner:
     """The loop of one training run of ``cfg`` on ``env`` by ``learner`` (default: ``cfg.agent.learner``'s, built here);
     ``log_dir`` None writes nothing (no metrics, no checkpoints). Evaluations (``Evaluations``) run on ``eval_env`` or,
-    where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``), inside the training's step. ``cfg`` is rsl-rl's
-    ``train_cfg`` dict."""
+    where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``), inside the training's step. ``ranks``: the
+    processes the run spans (default: torchrun's). ``cfg`` is rsl-rl's ``train_cfg`` dict."""
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None,
-                 learner: Learner | None = None):
-        self.env, self.train_cfg, self.device, self.ranks = env, cfg, env.device, Ranks.from_environment()
+                 learner: Learner | None = None, ranks: Ranks | None = None):
+        self.env, self.train_cfg, self.device = env, cfg, env.device
+        self.ranks = ranks if ranks is not None else Ranks.from_environment()
         self.cfg = to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images)
         if learner is None:
             self.cfg["multi_gpu"] = join_process_group(self.ranks, self.device)

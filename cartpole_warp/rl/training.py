@@ -173,7 +173,7 @@ class Training:
                                                                         seed=cfg.env.seed))
         with timed(self.timing_s, "networks"):
             self.runner = TaskRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
-                                     self.run_dir if ranks.writes else None, self.eval_env)
+                                     self.run_dir if ranks.writes else None, self.eval_env, ranks=ranks)
         with timed(self.timing_s, "eval_env"):
             self.runner.evaluations.prepare()
             if resume_from is not None:
