@@ -9,7 +9,6 @@ iterations) and at least every ``eval.max_interval``; the best so far is kept as
 from __future__ import annotations
 
 import copy
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,5 +146,5 @@ class Evaluations:
         progress.best = {"iteration": judged.iteration, "solved": solved, self.play_metric: score[1]}
         if run_dir is not None:
             state = judged.state if judged.state is not None else self.learner.state_dict()
-            infos = progress.as_of(judged.iteration) if judged.state is not None else dataclasses.asdict(progress)
+            infos = progress.as_of(judged.iteration) if judged.state is not None else progress.infos()
             write(run_dir / BEST_CHECKPOINT, state, judged.iteration, infos)

@@ -13,7 +13,6 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 
 # isort: split
 import contextlib
-import dataclasses
 import io
 import time
 from collections.abc import Callable
@@ -156,7 +155,7 @@ class TaskRunner:
     def save(self, path: str, infos: dict | None = None) -> None:
         """Write the learner's state, the iteration and the progress to ``path`` atomically."""
         self._write(Path(path), self.learner.state_dict(), self.current_learning_iteration,
-                    infos if infos is not None else dataclasses.asdict(self.progress))
+                    infos if infos is not None else self.progress.infos())
 
     def _write(self, path: Path, state: dict, iteration: int, infos: dict):
         """``save`` of ``state`` (``Learner.state_dict``'s) as the checkpoint of ``iteration``."""

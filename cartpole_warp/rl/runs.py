@@ -159,10 +159,15 @@ class Progress:
         """The progress a checkpoint's ``infos`` holds."""
         return cls(**{f.name: infos[f.name] for f in dataclasses.fields(cls) if f.name in infos})
 
+    def infos(self) -> dict:
+        """The progress as a checkpoint's ``infos``: a shallow dict, for ``torch.save`` to write at once (a deep copy
+        of the history would cost each of a population's checkpoints time that grows with the iterations)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
     def as_of(self, iteration: int) -> dict:
         """The progress as it stood after ``iteration`` (a checkpoint's ``infos``), with the verdicts since."""
         history = [h for h in self.history if h["iteration"] <= iteration]
-        return dict(dataclasses.asdict(self), iterations=iteration + 1, env_steps=history[-1]["env_steps"],
+        return dict(self.infos(), iterations=iteration + 1, env_steps=history[-1]["env_steps"],
                     train_time_s=history[-1]["train_time_s"], history=history)
 
 
