@@ -101,14 +101,17 @@ def join_process_group(ranks: Ranks, device: str) -> dict | None:
     return {"global_rank": ranks.rank, "local_rank": ranks.local_rank, "world_size": ranks.world_size}
 
 
-def join_population_group(ranks: Ranks):
-    """Join torchrun's process group for a population (``rl.population_training``): gloo, on any device, since its
-    members exchange no gradients, only their run folder's name at the start and their table rows at the end."""
+def join_population_group(ranks: Ranks, device: str):
+    """Join torchrun's process group for a population (``rl.population_training``) on ``device`` (this process's):
+    gloo, on any device, since its members exchange no gradients, only their run folder's name at the start and their
+    table rows at the end."""
     if not ranks.distributed:
         return
     import torch
 
     torch.distributed.init_process_group(backend="gloo", rank=ranks.rank, world_size=ranks.world_size)
+    if device.startswith("cuda"):
+        torch.cuda.set_device(device)
 
 
 def from_rank_zero(value, ranks: Ranks):

@@ -67,7 +67,7 @@ class PopulationTraining:
         device = resolve_device(self.ranks.device(cfg.env.device, torch.cuda.device_count()))
         cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
         check_population_memory(cfg, len(members), device)
-        join_population_group(self.ranks)
+        join_population_group(self.ranks, device)
         run_dir = from_rank_zero(Path(run_dir), self.ranks)
         start = time.perf_counter()
         self.cfg, self.members, self.run_dir = cfg, members, Path(run_dir)
