@@ -217,3 +217,35 @@ vector.close()
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.strip().endswith(", 64, 64)"), result.stdout
+
+
+@pytest.mark.parametrize("env_id", [DEFAULT_ID, SWINGUP_ID, DOUBLE_POLE_ID])
+def test_the_next_step_autoreset_is_gymnasiums_sync_vector_env_of_the_single_env(env_id):
+    """``autoreset_mode="NextStep"``: step for step what gymnasium's own ``SyncVectorEnv`` (NEXT_STEP) makes of the
+    single env, over several episode ends; and gymnasium's vector observation wrappers take it."""
+    vector = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", autoreset_mode="NextStep",
+                          task=SHORT_EPISODES)
+    reference = gym.vector.SyncVectorEnv([lambda: gym.make(env_id, task=SHORT_EPISODES)],
+                                         autoreset_mode=AutoresetMode.NEXT_STEP)
+    assert vector.autoreset_mode == AutoresetMode.NEXT_STEP == vector.metadata["autoreset_mode"]
+    np.testing.assert_array_equal(vector.reset(seed=4)[0], reference.reset(seed=4)[0])
+    ends = restarts = 0
+    for actions in random_actions(60, 1, seed=2):
+        got, want = vector.step(actions), reference.step(actions)
+        for name, mine, theirs in zip(("obs", "reward", "terminated", "truncated"), got[:4], want[:4]):
+            np.testing.assert_array_equal(mine, theirs, err_msg=name)
+        if want[2][0] or want[3][0]:
+            ends += 1
+            assert got[4]["_episode_return"][0] and got[4]["episode_length"][0] == want[4]["episode_length"][0]
+            np.testing.assert_allclose(got[4]["episode_return"], want[4]["episode_return"], rtol=1e-6)
+        restarts += bool(got[4] == {} and got[1][0] == 0.0 and ends)
+    assert ends >= 4 and restarts >= ends - 1
+    normalized = gym.wrappers.vector.NormalizeObservation(vector)  # refuses a same-step autoreset
+    normalized.reset(seed=0)
+    assert np.isfinite(normalized.step(random_actions(1, 1, seed=3)[0])[0]).all()
+    vector.close()
+
+
+def test_an_autoreset_mode_the_env_cannot_keep_is_refused_naming_the_two_it_offers():
+    with pytest.raises(ValueError, match=r"must be one of 'SameStep', 'NextStep'.*got 'Disabled'"):
+        TaskVectorEnv(num_envs=2, autoreset_mode="Disabled")

@@ -54,20 +54,13 @@ class PopulationTraining:
 
     def __init__(self, cfg: TrainConfig, members: list[Member], run_dir: Path,
                  timing_s: dict[str, float] | None = None, ranks: Ranks | None = None):
-        cfg = cfg.validate()
         self.ranks = ranks if ranks is not None else Ranks.from_environment()
         self.prefix = f"rank {self.ranks.rank}: " if self.ranks.distributed else ""
         """Before each console line of this process."""
-        if cfg.eval.in_step:  # a task's GPU default for long runs, made for one run's envs
-            print(f"{self.prefix}note: a population judges its members on envs of their own, not inside the "
-                  "training's step (eval.in_step)", flush=True)
-            cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, in_step=False))
-        check_population(cfg, members)
+        cfg = self._process_config(cfg.validate(), members)
         self.all_members, members = members, self.ranks.share(members)
-        device = resolve_device(self.ranks.device(cfg.env.device, torch.cuda.device_count()))
-        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
-        check_population_memory(cfg, len(members), device)
-        join_population_group(self.ranks, device)
+        check_population_memory(cfg, len(members), cfg.env.device)
+        join_population_group(self.ranks, cfg.env.device)
         run_dir = from_rank_zero(Path(run_dir), self.ranks)
         start = time.perf_counter()
         self.cfg, self.members, self.run_dir = cfg, members, Path(run_dir)
@@ -99,6 +92,18 @@ class PopulationTraining:
         """Each iteration's wall seconds, its members' evaluations, checkpoints and lines included."""
         self.setup_time_s = time.perf_counter() - start
         self.interrupted = False
+
+    def _process_config(self, cfg: TrainConfig, members: list[Member]) -> TrainConfig:
+        """``cfg`` as this process trains it (ConfigError where a population cannot): on this process's device, and
+        judged on envs of its own where the task evaluates inside the step (``eval.in_step``: a task's GPU default for
+        long runs, made for one run's envs)."""
+        if cfg.eval.in_step:
+            print(f"{self.prefix}note: a population judges its members on envs of their own, not inside the "
+                  "training's step (eval.in_step)", flush=True)
+            cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, in_step=False))
+        check_population(cfg, members)
+        device = resolve_device(self.ranks.device(cfg.env.device, torch.cuda.device_count()))
+        return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
 
     def _on_signal(self, signum, frame):
         if self.interrupted:

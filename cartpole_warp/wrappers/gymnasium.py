@@ -81,6 +81,30 @@ def render_metadata(env: BatchedEnv) -> dict:
     return {"render_modes": ["rgb_array"], "render_fps": round(1.0 / env.env_dt)}
 
 
+def autoreset_mode_of(mode: AutoresetMode | str) -> AutoresetMode:
+    """``mode`` as an ``AutoresetMode``; ValueError for any but same-step and next-step (the batched env resets the
+    envs that end: it cannot leave them ended)."""
+    offered = (AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP)
+    try:
+        chosen = AutoresetMode(mode)
+    except ValueError:
+        chosen = None
+    if chosen not in offered:
+        raise ValueError(f"autoreset_mode must be one of {', '.join(repr(m.value) for m in offered)} "
+                         f"(AutoresetMode.SAME_STEP or NEXT_STEP), got {mode!r}")
+    return chosen
+
+
+def episode_ends(info: dict, ended: np.ndarray) -> dict[str, np.ndarray]:
+    """The ended episodes' figures of a batched env's ``info`` (return, length, end reason code), each with its
+    ``_key`` mask ``ended``."""
+    ends = {}
+    for key in ("episode_return", "episode_length", "end_reason"):
+        ends[key] = info[key].cpu().numpy()
+        ends[f"_{key}"] = ended
+    return ends
+
+
 def env_ids() -> dict[str, tuple[str, str | None]]:
     """Every registered task's gymnasium ids: id -> (task name, preset). None sets ``max_episode_steps``: the env
     truncates by itself (at its time limit) or never (the ``tutorial`` preset, like the Isaac Sim tutorial)."""
@@ -166,30 +190,39 @@ class TaskGymEnv(gym.Env):
 class TaskVectorEnv(VectorEnv):
     """A task's ``BatchedEnv`` as a ``gymnasium.vector.VectorEnv`` (numpy in and out, no loop over envs).
 
-    Same-step autoreset (``metadata["autoreset_mode"]``): an env that ends returns the first observation of
-    its next episode. On steps where any env ended, ``info`` holds (gymnasium 1.x convention):
+    ``autoreset_mode`` (also in ``metadata``), gymnasium's two:
 
-    - ``final_obs`` (N, num_obs) float32 (or camera frames: ``observation_space``), the observations at which
-      episodes ended, valid where ``_final_obs`` (N,) bool;
-    - ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of the env's ``end_reasons``),
-      each with its ``_key`` mask}, valid where ``_final_info``.
+    - ``SAME_STEP`` (the default; the batched env's own): an env that ends returns the first observation of its next
+      episode. On steps where any env ended, ``info`` holds (gymnasium 1.x convention) ``final_obs`` (N, num_obs)
+      float32 (or camera frames: ``observation_space``), the observations at which episodes ended, valid where
+      ``_final_obs`` (N,) bool; and ``final_info`` {``episode_return``, ``episode_length``, ``end_reason`` (codes of the
+      env's ``end_reasons``), each with its ``_key`` mask}, valid where ``_final_info``.
+    - ``NEXT_STEP`` (gymnasium's default, which its vector observation wrappers require): an env that ends returns the
+      observation at which it ended, with ``info`` {``episode_return``, ``episode_length``, ``end_reason``, each with
+      its ``_key`` mask}; its next step ignores its action and returns the first observation of its next episode,
+      reward 0, neither terminated nor truncated. Its trajectory is a ``SyncVectorEnv``'s of ``TaskGymEnv`` (checked
+      without observation noise: with it, the restarted envs draw their noise on from elsewhere in their stream).
 
-    Arguments as for ``TaskGymEnv``, plus ``num_envs`` (default the preset's); ``preset`` defaults to None.
+    Arguments as for ``TaskGymEnv``, plus ``num_envs`` (default the preset's) and ``autoreset_mode`` (an
+    ``AutoresetMode`` or its value, e.g. ``"NextStep"``); ``preset`` defaults to None.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"]}
 
     def __init__(self, num_envs: int | None = None, task_name: str = tasks.DEFAULT_TASK, preset: str | None = None,
-                 device: str = "cpu", seed: int | None = None, render_mode: str | None = None, **overrides):
+                 device: str = "cpu", seed: int | None = None, render_mode: str | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP, **overrides):
         check_keywords(type(self).__name__, overrides)
+        self.autoreset_mode = autoreset_mode_of(autoreset_mode)
+        """As gymnasium's own vector envs have it (clients read the attribute, not the metadata)."""
         one_thread_if_forked()
         self.env = tasks.make(task_name, num_envs=num_envs, device=device, seed=seed, preset=preset, **overrides)
         self.render_mode = render_mode
-        self.metadata = {**self.metadata, **render_metadata(self.env)}
+        self.metadata = {**self.metadata, **render_metadata(self.env), "autoreset_mode": self.autoreset_mode}
         self._frames = env_frames(self.env, render_mode)
         self.num_envs = self.env.num_envs
-        self.autoreset_mode = self.metadata["autoreset_mode"]
-        """As gymnasium's own vector envs have it (clients read the attribute, not the metadata)."""
+        self._restart: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        """``NEXT_STEP``: the envs whose episode ended last step, their next episode's start states and observations."""
         self.single_observation_space = self.env.single_observation_space
         self.single_action_space = self.env.single_action_space
         self.observation_space, self.action_space = self.env.observation_space, self.env.action_space
@@ -197,22 +230,43 @@ class TaskVectorEnv(VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         obs, _ = self.env.reset(seed=seed)
+        self._restart = None
         return obs.cpu().numpy(), {}
 
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.env.step(
             actions_tensor(actions, self.num_envs, self.env))
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            return self._next_step_autoreset(obs, reward, terminated, truncated, info)
         terminated, truncated = terminated.cpu().numpy(), truncated.cpu().numpy()
         done = terminated | truncated
         infos = {}
         if done.any():
-            final_info = {}
-            for key in ("episode_return", "episode_length", "end_reason"):
-                final_info[key] = info[key].cpu().numpy()
-                final_info[f"_{key}"] = done
             infos = {"final_obs": info["final_obs"].cpu().numpy(), "_final_obs": done,
-                     "final_info": final_info, "_final_info": done}
+                     "final_info": episode_ends(info, done), "_final_info": done}
         return obs.cpu().numpy(), reward.cpu().numpy(), terminated, truncated, infos
+
+    def _next_step_autoreset(self, obs, reward, terminated, truncated, info):
+        """``step``'s results under ``NEXT_STEP`` from the batched env's same-step ones: the envs that ended last step
+        go back to the start of the episode the batched env began for them (stepping them was a throw-away step),
+        the envs that end now return their final observation."""
+        import torch
+
+        if self._restart is not None:
+            restarting, states, first_obs = self._restart
+            self.env.set_state(states, restarting)
+            obs = torch.where(restarting.view(-1, *[1] * (obs.dim() - 1)), first_obs, obs)
+            reward = torch.where(restarting, 0.0, reward)
+            terminated, truncated = terminated & ~restarting, truncated & ~restarting
+        ended = terminated | truncated
+        self._restart = None
+        infos = {}
+        if ended.any():
+            q, qd = self.env.joint_state()
+            self._restart = (ended, torch.stack([q, qd], dim=2).flatten(1), obs.clone())
+            obs = torch.where(ended.view(-1, *[1] * (obs.dim() - 1)), info["final_obs"], obs)
+            infos = episode_ends(info, ended.cpu().numpy())
+        return obs.cpu().numpy(), reward.cpu().numpy(), terminated.cpu().numpy(), truncated.cpu().numpy(), infos
 
     def render(self):
         """With ``render_mode="rgb_array"``: a sequence of ``num_envs`` frames (H, W, 3) uint8 that draws env ``i``
