@@ -148,11 +148,27 @@ def angle_error(a: torch.Tensor, b: torch.Tensor, hinge: torch.Tensor) -> torch.
     return torch.where(hinge, torch.atan2(torch.sin(difference), torch.cos(difference)), difference)
 
 
-def fit(args: SysidArgs) -> dict:
-    """The fit (``SysidArgs``): prints its progress and result, writes the plot, the preset and the result file, and
-    returns the result."""
-    task = tasks.get(args.task)
-    probe = task.env_class(tasks.env_config(args.task, num_envs=1, device=args.device))
+@dataclass
+class Problem:
+    """What a fit reads before it builds its envs: the recording, its windows and the parameters to fit."""
+
+    recording: Recording
+    starts: list[int]
+    """The windows' first rows."""
+    names: list[str]
+    """The parameters fitted."""
+    stage: dict[str, float]
+    """Every settable parameter's value on the stage (SI units)."""
+    roles: tuple[str, ...]
+    sliders: list[bool]
+    dt: float
+    """The task's control period (s)."""
+
+
+def read_problem(args: SysidArgs) -> Problem:
+    """The recording of ``args.trajectory`` checked against the task (ConfigError in one line), cut into windows, and
+    the parameters to fit."""
+    probe = tasks.get(args.task).env_class(tasks.env_config(args.task, num_envs=1, device=args.device))
     require(not probe.sees_images, f"--task {args.task} observes camera frames; identify its state twin's physics")
     roles, sliders, dt = probe.joint_roles, probe.physics.sliders, probe.cfg.sim.env_dt
     recording = read_trajectory(args.trajectory, roles, sliders, probe.num_actions)
@@ -166,149 +182,197 @@ def fit(args: SysidArgs) -> dict:
     starts = windows(recording, args.window_steps, clear)
     require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode and clear of "
                     "the joints' limits")
-    names = physics_names = [n for n in probe.physics.settable() if n != "action_delay_steps"]
-    stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in physics_names}
+    settable = [n for n in probe.physics.settable() if n != "action_delay_steps"]
+    stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in settable}
     on_joint = [f"{role}_com_m" for role, body in zip(roles, probe.physics.bodies) if body.com_distance == 0.0]
-    names = args.fit or [n for n in physics_names if n not in NOT_FITTED_BY_DEFAULT and n not in on_joint]
+    probe.close()
+    return Problem(recording, starts, fitted_names(args.fit, settable, on_joint), stage, roles, sliders, dt)
+
+
+def fitted_names(chosen: list[str], settable: list[str], on_joint: list[str]) -> list[str]:
+    """``--fit``'s parameters (ConfigError in one line where one is unknown, named twice or a centre of mass on its
+    joint), or by default every ``settable`` one but ``NOT_FITTED_BY_DEFAULT`` and those centres of mass."""
+    names = chosen or [n for n in settable if n not in NOT_FITTED_BY_DEFAULT and n not in on_joint]
     require(len(set(names)) == len(names), f"--fit names a parameter twice: {' '.join(names)}")
-    unknown = sorted(set(names) - set(physics_names))
-    require(not unknown, f"--fit: unknown parameters {unknown}; this task's: {', '.join(physics_names)}")
+    unknown = sorted(set(names) - set(settable))
+    require(not unknown, f"--fit: unknown parameters {unknown}; this task's: {', '.join(settable)}")
     require(not set(names) & set(on_joint), f"--fit: {', '.join(set(names) & set(on_joint))}: those bodies' centre "
                                             "of mass lies on their joint, with no line to move along")
-    probe.close()
+    return names
 
-    guesses, num_windows, horizon = args.guesses, len(starts), args.window_steps
-    n = guesses * num_windows
-    env = task.env_class(tasks.env_config(args.task, num_envs=n, device=args.device, sim={"gradients": True}))
-    rollout = DifferentiableRollout(env, horizon)
-    device = rollout.device
-    rows = np.array(starts)[:, None] + np.arange(horizon + 1)[None, :]  # (windows, H + 1)
-    tensor = lambda x: torch.as_tensor(x, dtype=torch.float32, device=device)  # noqa: E731
-    recorded = tensor(recording.q[rows]).repeat(guesses, 1, 1)  # (N, H + 1, joints)
-    actions = tensor(recording.action[rows[:, :-1]]).repeat(guesses, 1, 1).transpose(0, 1)  # (H, N, actions)
-    scale = tensor(np.maximum(recording.q.std(axis=0), 1e-3))
-    hinge = torch.tensor([not s for s in sliders], device=device)
-    # a parameter the stage sets (a mass, a centre of mass) is fitted as its log over the stage's value; one the
-    # stage leaves at 0 (damping, friction) as itself in SI units, kept >= 0
-    linear = torch.tensor([stage[name] == 0.0 for name in names], device=device)
-    base = {name: stage[name] if stage[name] > 0 else 1.0 for name in names}
-    generator = torch.Generator().manual_seed(args.seed)
-    spread = math.log1p(args.spread)
-    theta = ((torch.rand((guesses, len(names)), generator=generator) * 2 - 1) * spread).to(device)
-    theta[0] = 0.0  # one guess starts at the stage's values
-    theta = torch.where(linear, theta.abs() * ZERO_START, theta)  # the others near 0
-    estimated = velocities(recording, dt, sliders)
-    velocity_scale = tensor(np.maximum(estimated.std(axis=0), 1e-3))
-    qd_start = tensor(estimated[rows[:, 0]]).repeat(guesses, 1)
-    joints = len(roles)
-    starts_t = torch.zeros((n, 2 * joints), device=device)  # each window's start, in units of the signals' spread
-    base_t = tensor([base[name] for name in names])
-    guess_of = torch.arange(n, device=device) // num_windows
 
-    def residuals(theta: torch.Tensor, starts_t: torch.Tensor) -> tuple[torch.Tensor, Trajectory]:
-        """(N, (H + 1) x joints) normalized position errors of every window, and the rollout."""
-        values = physical(theta)
-        params = {name: values[:, k].repeat_interleave(num_windows) for k, name in enumerate(names)}
-        q0 = recorded[:, 0] + starts_t[:, :joints] * scale
-        qd0 = qd_start + starts_t[:, joints:] * velocity_scale
-        out = rollout(q0, qd0, actions=actions, params=params)
-        return (angle_error(out.q.transpose(0, 1), recorded, hinge) / scale).flatten(1), out
+class WindowFit:
+    """The batched fit of a ``Problem``: ``guesses`` x windows envs of one differentiable rollout, each window of each
+    guess one env. Per guess the parameters ``theta`` (G, P): a parameter the stage sets (a mass, a centre of mass) as
+    its log over the stage's value, one the stage leaves at 0 (damping, friction) as itself in SI units, kept >= 0;
+    per env its window's start ``starts`` (N, 2 joints), in units of the signals' spread around the recorded one."""
 
-    def physical(theta: torch.Tensor) -> torch.Tensor:
+    def __init__(self, problem: Problem, args: SysidArgs):
+        self.problem, self.guesses, self.horizon = problem, args.guesses, args.window_steps
+        self.num_windows, recording, stage = len(problem.starts), problem.recording, problem.stage
+        self.num_envs = n = self.guesses * self.num_windows
+        env = tasks.get(args.task).env_class(tasks.env_config(args.task, num_envs=n, device=args.device,
+                                                              sim={"gradients": True}))
+        self.rollout = DifferentiableRollout(env, self.horizon)
+        self.device = device = self.rollout.device
+        rows = np.array(problem.starts)[:, None] + np.arange(self.horizon + 1)[None, :]  # (windows, H + 1)
+        tensor = lambda x: torch.as_tensor(x, dtype=torch.float32, device=device)  # noqa: E731
+        self.recorded = tensor(recording.q[rows]).repeat(self.guesses, 1, 1)  # (N, H + 1, joints)
+        self.actions = tensor(recording.action[rows[:, :-1]]).repeat(self.guesses, 1, 1).transpose(0, 1)  # (H, N, A)
+        self.scale = tensor(np.maximum(recording.q.std(axis=0), 1e-3))
+        self.hinge = torch.tensor([not s for s in problem.sliders], device=device)
+        self.linear = torch.tensor([stage[name] == 0.0 for name in problem.names], device=device)
+        self.base = tensor([stage[name] if stage[name] > 0 else 1.0 for name in problem.names])
+        estimated = velocities(recording, problem.dt, problem.sliders)
+        self.velocity_scale = tensor(np.maximum(estimated.std(axis=0), 1e-3))
+        self.qd_start = tensor(estimated[rows[:, 0]]).repeat(self.guesses, 1)
+        self.joints = len(problem.roles)
+        self.guess_of = torch.arange(n, device=device) // self.num_windows
+
+    def first_guesses(self, seed: int, spread: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The starting ``theta``, each parameter log-uniform within a factor 1 + ``spread`` of the stage's value
+        (guess 0: the stage's values; near 0 where the stage's value is 0), and the windows' ``starts`` as recorded."""
+        generator = torch.Generator().manual_seed(seed)
+        theta = ((torch.rand((self.guesses, len(self.problem.names)), generator=generator) * 2 - 1)
+                 * math.log1p(spread)).to(self.device)
+        theta[0] = 0.0
+        theta = torch.where(self.linear, theta.abs() * ZERO_START, theta)
+        return theta, torch.zeros((self.num_envs, 2 * self.joints), device=self.device)
+
+    def physical(self, theta: torch.Tensor) -> torch.Tensor:
         """(G, P) parameters (SI) of the fitted variables."""
-        return torch.where(linear, base_t * theta, base_t * torch.exp(torch.where(linear, 0.0, theta)))
+        return torch.where(self.linear, self.base * theta,
+                           self.base * torch.exp(torch.where(self.linear, 0.0, theta)))
 
-    def per_guess(r: torch.Tensor) -> torch.Tensor:
-        return torch.zeros(guesses, device=device).index_add_(0, guess_of, 0.5 * r.pow(2).sum(dim=1))
+    def residuals(self, theta: torch.Tensor, starts: torch.Tensor) -> tuple[torch.Tensor, Trajectory]:
+        """(N, (H + 1) x joints) normalized position errors of every window, and the rollout."""
+        values, joints = self.physical(theta), self.joints
+        params = {name: values[:, k].repeat_interleave(self.num_windows) for k, name in enumerate(self.problem.names)}
+        q0 = self.recorded[:, 0] + starts[:, :joints] * self.scale
+        qd0 = self.qd_start + starts[:, joints:] * self.velocity_scale
+        out = self.rollout(q0, qd0, actions=self.actions, params=params)
+        return (angle_error(out.q.transpose(0, 1), self.recorded, self.hinge) / self.scale).flatten(1), out
 
-    def jacobians(theta: torch.Tensor, starts_t: torch.Tensor, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The residuals' Jacobians by forward differences, (N, K, 2 joints) in each window's start and (N, K, P) in
-        the log-parameters: one batched rollout per column (the windows are independent envs)."""
-        a_cols = [(residuals(theta, starts_t + JACOBIAN_STEP * unit(2 * joints, j, device))[0] - r) / JACOBIAN_STEP
-                  for j in range(2 * joints)]
-        b_cols = [(residuals(theta + JACOBIAN_STEP * unit(len(names), k, device), starts_t)[0] - r) / JACOBIAN_STEP
-                  for k in range(len(names))]
+    def per_guess(self, r: torch.Tensor) -> torch.Tensor:
+        """(G,) each guess's loss: half its windows' squared residuals."""
+        return torch.zeros(self.guesses, device=self.device).index_add_(0, self.guess_of, 0.5 * r.pow(2).sum(dim=1))
+
+    def jacobians(self, theta: torch.Tensor, starts: torch.Tensor, r: torch.Tensor):
+        """The Jacobians of the residuals ``r`` by forward differences, (N, K, 2 joints) in each window's start and
+        (N, K, P) in ``theta``: one batched rollout per column (the windows are independent envs)."""
+        step, device, size = JACOBIAN_STEP, self.device, len(self.problem.names)
+        a_cols = [(self.residuals(theta, starts + step * unit(2 * self.joints, j, device))[0] - r) / step
+                  for j in range(2 * self.joints)]
+        b_cols = [(self.residuals(theta + step * unit(size, k, device), starts)[0] - r) / step for k in range(size)]
         return torch.stack(a_cols, dim=2), torch.stack(b_cols, dim=2)
 
-    def schur(a: torch.Tensor, b: torch.Tensor, lam: torch.Tensor, extra: torch.Tensor | None = None):
-        """Per window: A'A + lam, A'B, and the parameters' normal matrix with the window's start eliminated."""
-        ata = a.transpose(1, 2) @ a + lam[:, None, None] * torch.eye(2 * joints, device=device)
+    def schur(self, a: torch.Tensor, b: torch.Tensor, lam: torch.Tensor, extra: torch.Tensor | None = None):
+        """Per window: A'A + lam, A'B, the parameters' normal matrix with the window's start eliminated, and
+        (A'A + lam)^-1 [A'B, extra]."""
+        ata = a.transpose(1, 2) @ a + lam[:, None, None] * torch.eye(2 * self.joints, device=self.device)
         atb = a.transpose(1, 2) @ b
         solved = torch.linalg.solve(ata, atb if extra is None else torch.cat([atb, extra], dim=2))
         return ata, atb, b.transpose(1, 2) @ b - atb.transpose(1, 2) @ solved[:, :, :atb.shape[2]], solved
 
-    print(f"{args.task}: {len(recording.time_s)} rows, {num_windows} windows of {horizon} steps x {guesses} guesses "
-          f"= {n} envs on {device}; fitting {', '.join(names)}", flush=True)
-    start = time.perf_counter()
-    lm_lambda = torch.full((guesses,), INITIAL_LM_LAMBDA, device=device)
-    for it in range(args.iterations):
-        # the exact gradient through the simulator (one backward pass), the Jacobian's columns by forward differences
-        # (one batched rollout per starting-state coordinate and per parameter: the windows are independent envs)
-        theta_leaf, starts_leaf = theta.clone().requires_grad_(), starts_t.clone().requires_grad_()
-        r, _ = residuals(theta_leaf, starts_leaf)
-        loss = per_guess(r.detach())
-        per_guess(r).sum().backward()
-        grad_theta, grad_starts = theta_leaf.grad, starts_leaf.grad
-        r = r.detach()
+    def step(self, theta: torch.Tensor, starts: torch.Tensor, lm_lambda: torch.Tensor):
+        """One Levenberg-Marquardt iteration of every guess (``lm_lambda`` (G,): each one's damping): the exact gradient
+        through the simulator (one backward pass), the Jacobian's columns by forward differences, a step on ``theta``
+        and every window's start, kept where it lowers the guess's loss. The new theta, starts and lambdas, and the
+        best guess's loss."""
+        theta_leaf, starts_leaf = theta.clone().requires_grad_(), starts.clone().requires_grad_()
+        r, _ = self.residuals(theta_leaf, starts_leaf)
+        loss = self.per_guess(r.detach())
+        self.per_guess(r).sum().backward()
+        grad_theta, grad_starts, guess_of, size = theta_leaf.grad, starts_leaf.grad, self.guess_of, theta.shape[1]
         with torch.no_grad():
-            a, b = jacobians(theta, starts_t, r)
-            lam = lm_lambda[guess_of]
-            ata, atb, reduced, solve_ata = schur(a, b, lam, grad_starts[:, :, None])
-            reduced_normal = torch.zeros((guesses, len(names), len(names)), device=device).index_add_(
+            a, b = self.jacobians(theta, starts, r.detach())
+            ata, atb, reduced, solve_ata = self.schur(a, b, lm_lambda[guess_of], grad_starts[:, :, None])
+            reduced_normal = torch.zeros((self.guesses, size, size), device=self.device).index_add_(
                 0, guess_of, reduced)
-            reduced_normal += lm_lambda[:, None, None] * torch.eye(len(names), device=device)
+            reduced_normal += lm_lambda[:, None, None] * torch.eye(size, device=self.device)
             rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
                 0, guess_of, (atb.transpose(1, 2) @ solve_ata[:, :, -1:]).squeeze(2))
             step_theta = -torch.linalg.solve(reduced_normal, rhs)
             step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
-            trial_theta, trial_starts = theta + step_theta, starts_t + step_starts.squeeze(2)
-            trial_theta = torch.where(linear, trial_theta.clamp(min=0.0), trial_theta)
-            trial_loss = per_guess(residuals(trial_theta, trial_starts)[0])
+            trial_theta, trial_starts = theta + step_theta, starts + step_starts.squeeze(2)
+            trial_theta = torch.where(self.linear, trial_theta.clamp(min=0.0), trial_theta)
+            trial_loss = self.per_guess(self.residuals(trial_theta, trial_starts)[0])
             better = trial_loss < loss
             theta = torch.where(better[:, None], trial_theta, theta)
-            starts_t = torch.where(better[guess_of][:, None], trial_starts, starts_t)
+            starts = torch.where(better[guess_of][:, None], trial_starts, starts)
             lm_lambda = torch.where(better, lm_lambda / 3, lm_lambda * 4).clamp(1e-9, 1e9)
-        print(f"  iteration {it + 1}/{args.iterations}: best loss {torch.minimum(loss, trial_loss).min().item():.3e} "
-              f"({time.perf_counter() - start:.1f} s)", flush=True)
-    with torch.no_grad():
-        r, out = residuals(theta, starts_t)
-        losses = per_guess(r)
-        best = int(losses.nan_to_num(nan=math.inf).argmin())  # a guess that diverged is never the best
-        # standard errors: the noise's variance (the residual per degree of freedom) times the inverse of the
-        # parameters' normal matrix (Gauss-Newton's, each window's start eliminated), for the best guess
-        best_guess_rows = guess_of == best
-        a, b = jacobians(theta, starts_t, r)
-        normal = schur(a[best_guess_rows], b[best_guess_rows], torch.zeros(num_windows, device=device))[2].sum(dim=0)
-        shared = sum(b - a == horizon for a, b in zip(starts, starts[1:]))  # rows two windows both hold
-        freedom = max(r[best_guess_rows].numel() - shared * joints - len(names) - num_windows * 2 * joints, 1)
+        return theta, starts, lm_lambda, torch.minimum(loss, trial_loss).min().item()
+
+    @torch.no_grad()
+    def standard_errors(self, theta: torch.Tensor, starts: torch.Tensor):
+        """Each guess's loss (G,), the best guess (a guess that diverged is never it), the standard errors of its
+        ``theta`` (P,) and the rollout: the noise's variance (the residual per degree of freedom) times the inverse of
+        the parameters' normal matrix (Gauss-Newton's, each window's start eliminated)."""
+        r, out = self.residuals(theta, starts)
+        losses = self.per_guess(r)
+        best = int(losses.nan_to_num(nan=math.inf).argmin())
+        best_guess_rows = self.guess_of == best
+        a, b = self.jacobians(theta, starts, r)
+        normal = self.schur(a[best_guess_rows], b[best_guess_rows],
+                            torch.zeros(self.num_windows, device=self.device))[2].sum(dim=0)
+        first_rows = self.problem.starts
+        shared = sum(later - earlier == self.horizon for earlier, later in zip(first_rows, first_rows[1:]))
+        freedom = max(r[best_guess_rows].numel() - shared * self.joints - theta.shape[1]
+                      - self.num_windows * 2 * self.joints, 1)
         variance = 2 * float(losses[best]) / freedom
         # a direction the data do not see (an eigenvalue ~0) gives the parameters along it a huge error, not none
         eigenvalues, vectors = torch.linalg.eigh(normal.double())
         eigenvalues = eigenvalues.clamp(min=1e-12 * max(float(eigenvalues.max()), 1e-30))
-        theta_error = torch.sqrt(variance * (vectors.pow(2) / eigenvalues).sum(dim=1)).float()
-    values = physical(theta)
-    # a log-parameter's standard error is relative; a linear one's is in SI units
-    error = torch.where(linear, base_t * theta_error, values[best] * theta_error)
-    seconds = time.perf_counter() - start
-    fitted = {name: float(values[best, k]) for k, name in enumerate(names)}
-    standard_error = {name: float(error[k]) for k, name in enumerate(names)}
-    good = (losses <= losses[best] * EQUALLY_GOOD).nonzero().flatten()
-    window_error = angle_error(out.q.transpose(0, 1), recorded, hinge)
-    best_windows = slice(best * num_windows, (best + 1) * num_windows)
-    residual = window_error[best_windows].pow(2).mean(dim=(0, 1)).sqrt().cpu().numpy()
-    result = {"task": args.task, "trajectory": str(args.trajectory), "seconds": round(seconds, 2),
-              "windows": num_windows, "window_steps": horizon, "guesses": guesses, "loss": float(losses[best]),
-              "stage": {name: stage[name] for name in names}, "fitted": fitted,
-              "standard_error": standard_error,
-              "not_identified": [name for name in names if (fitted[name] > 0 or stage[name] > 0)
-                                 and standard_error[name] > IDENTIFIED_WITHIN * max(fitted[name], stage[name])],
-              "residual_rms": {pos: float(r) for pos, r in zip(column_names(roles, sliders)[0], residual)}}
-    report(result, len(good))
+        return losses, best, torch.sqrt(variance * (vectors.pow(2) / eigenvalues).sum(dim=1)).float(), out
+
+    def result(self, args: SysidArgs, theta: torch.Tensor, starts: torch.Tensor, start_s: float):
+        """The fit's result file (a dict), how many guesses fit within ``EQUALLY_GOOD`` of the best, and the best
+        guess's simulated positions (H + 1, windows, joints); ``start_s``: when fitting began (``perf_counter``)."""
+        problem, names, stage = self.problem, self.problem.names, self.problem.stage
+        losses, best, theta_error, out = self.standard_errors(theta, starts)
+        values = self.physical(theta)
+        # a log-parameter's standard error is relative; a linear one's is in SI units
+        error = torch.where(self.linear, self.base * theta_error, values[best] * theta_error)
+        fitted = {name: float(values[best, k]) for k, name in enumerate(names)}
+        standard_error = {name: float(error[k]) for k, name in enumerate(names)}
+        best_windows = slice(best * self.num_windows, (best + 1) * self.num_windows)
+        window_error = angle_error(out.q.transpose(0, 1), self.recorded, self.hinge)
+        residual = window_error[best_windows].pow(2).mean(dim=(0, 1)).sqrt().cpu().numpy()
+        seconds = round(time.perf_counter() - start_s, 2)
+        result = {"task": args.task, "trajectory": str(args.trajectory), "seconds": seconds,
+                  "windows": self.num_windows, "window_steps": self.horizon, "guesses": self.guesses,
+                  "loss": float(losses[best]), "stage": {name: stage[name] for name in names}, "fitted": fitted,
+                  "standard_error": standard_error,
+                  "not_identified": [name for name in names if (fitted[name] > 0 or stage[name] > 0)
+                                     and standard_error[name] > IDENTIFIED_WITHIN * max(fitted[name], stage[name])],
+                  "residual_rms": {pos: float(r) for pos, r in
+                                   zip(column_names(problem.roles, problem.sliders)[0], residual)}}
+        equally_good = int((losses <= losses[best] * EQUALLY_GOOD).sum())
+        return result, equally_good, out.q.detach()[:, best_windows].cpu().numpy()
+
+
+def fit(args: SysidArgs) -> dict:
+    """The fit (``SysidArgs``): prints its progress and result, writes the plot, the preset and the result file, and
+    returns the result."""
+    problem = read_problem(args)
+    fitter = WindowFit(problem, args)
+    theta, starts = fitter.first_guesses(args.seed, args.spread)
+    print(f"{args.task}: {len(problem.recording.time_s)} rows, {fitter.num_windows} windows of {fitter.horizon} steps "
+          f"x {args.guesses} guesses = {fitter.num_envs} envs on {fitter.device}; fitting {', '.join(problem.names)}",
+          flush=True)
+    start = time.perf_counter()
+    lm_lambda = torch.full((args.guesses,), INITIAL_LM_LAMBDA, device=fitter.device)
+    for it in range(args.iterations):
+        theta, starts, lm_lambda, best_loss = fitter.step(theta, starts, lm_lambda)
+        print(f"  iteration {it + 1}/{args.iterations}: best loss {best_loss:.3e} "
+              f"({time.perf_counter() - start:.1f} s)", flush=True)
+    result, equally_good, simulated = fitter.result(args, theta, starts, start)
+    report(result, equally_good)
     output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
-    plot(output / "sysid_fit.png", recording, starts, out.q.detach()[:, best_windows].cpu().numpy(), dt,
-         column_names(roles, sliders)[0])
+    labels = column_names(problem.roles, problem.sliders)[0]
+    plot(output / "sysid_fit.png", problem.recording, problem.starts, simulated, problem.dt, labels)
     write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
-    preset = write_preset(output / "sysid_preset.yaml", args, stage, fitted, roles)
+    preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.roles)
     print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
           f"(python train.py --task {args.task} --config {preset})")
     return result
