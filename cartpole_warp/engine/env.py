@@ -30,26 +30,10 @@ from .spaces import VectorSpaces
 if TYPE_CHECKING:
     import torch  # imported where used: parsing a command line needs no torch
 
-class BatchedEnv(VectorSpaces, abc.ABC):
-    """``num_envs`` copies of a task's robot stepped together on persistent Warp buffers (the machinery of every task).
 
-    A task subclass sets the class attributes below and keeps its spec (observation, action, reward, ends, reset) in
-    its docstring. Envs that end are reset within the same ``step``: the returned observation is the new episode's
-    first one, and ``info["final_obs"]`` holds the observation at which the episode ended. ``step`` returns fresh
-    tensors; ``obs_buf`` and friends are the zero-copy views the next step overwrites.
-
-    ``info`` keys (tensors on ``device``): ``final_obs`` (N, num_obs); ``episode_return`` (N,), ``episode_length``
-    (N,) and ``end_reason`` (N,) int32 (codes named by ``end_reasons``), valid where terminated | truncated;
-    ``nonfinite_actions``, ``nonfinite_states`` and ``diverged_states`` (scalars, totals since construction):
-    non-finite actions are applied as 0, and a non-finite physics state, or one beyond ``sim.divergence_limit``, ends
-    its episode (reward 0) with the last sound observation.
-
-    On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
-    (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
-
-    Each env simulates its own physical parameters (``physical_params()``): the stage's, or drawn by the config's
-    ``randomization`` at each episode start (or once), or set by ``set_physical_params``.
-    """
+class TaskDeclaration(abc.ABC):
+    """What a task's subclass of ``BatchedEnv`` declares: the class attributes below and ``joints``; its spec
+    (observation, action, reward, ends, reset) lives in its docstring."""
 
     config_class: ClassVar[type[TaskConfig]]
     """The task's settings (``env.task``); its float fields are the constants its functions read (``p``)."""
@@ -73,6 +57,26 @@ class BatchedEnv(VectorSpaces, abc.ABC):
     @abc.abstractmethod
     def joints(self, task: TaskConfig) -> list[JointRole]:
         """The stage's joint for each role of ``joint_roles`` (name and type), from the task's settings."""
+
+
+class BatchedEnv(VectorSpaces, TaskDeclaration):
+    """``num_envs`` copies of a task's robot stepped together on persistent Warp buffers (the machinery of every task:
+    a task subclasses it with its ``TaskDeclaration``). Envs that end are reset within the same ``step``: the returned
+    observation is the new episode's first one, and ``info["final_obs"]`` holds the observation at which the episode
+    ended. ``step`` returns fresh tensors; ``obs_buf`` and friends are the zero-copy views the next step overwrites.
+
+    ``info`` keys (tensors on ``device``): ``final_obs`` (N, num_obs); ``episode_return`` (N,), ``episode_length``
+    (N,) and ``end_reason`` (N,) int32 (codes named by ``end_reasons``), valid where terminated | truncated;
+    ``nonfinite_actions``, ``nonfinite_states`` and ``diverged_states`` (scalars, totals since construction):
+    non-finite actions are applied as 0, and a non-finite physics state, or one beyond ``sim.divergence_limit``, ends
+    its episode (reward 0) with the last sound observation.
+
+    On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
+    (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
+
+    Each env simulates its own physical parameters (``physical_params()``): the stage's, or drawn by the config's
+    ``randomization`` at each episode start (or once), or set by ``set_physical_params``.
+    """
 
     def __init__(self, cfg: EnvConfig):
         self.cfg = cfg.validate()
@@ -119,7 +123,7 @@ class BatchedEnv(VectorSpaces, abc.ABC):
         self._allocate()
         with timed(self.build_time_s, "kernels"):
             self._seed(cfg.seed)
-            self._reset_all()
+            self._reset_where(self.buffers.all_envs, None)
             wp.synchronize_device(self.device)
         with timed(self.build_time_s, "capture"):
             self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
@@ -220,13 +224,9 @@ class BatchedEnv(VectorSpaces, abc.ABC):
                 wp.launch(init_rng, dim=hi - lo, inputs=[int(seed), lo - start],
                           outputs=[self.buffers.episodes.rng_state[lo:hi]], device=self.device)
 
-    def _reset_all(self):
-        """A new episode in every env, and new physics where it is randomized."""
-        self._reset_where(self.buffers.all_envs, None)
-
     def _reset_where(self, mask: wp.array, ended: wp.array | None):
-        """A new episode where ``mask`` (bool) is set, and new physics where it is randomized and ``ended`` (int32
-        flags; None: everywhere) is set."""
+        """A new episode where ``mask`` (bool; ``buffers.all_envs``: every env) is set, and new physics where it is
+        randomized and ``ended`` (int32 flags; None: everywhere) is set."""
         for shard in self.shards:
             robot, episodes, _ = self._shard_structs[shard.index]
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
@@ -253,7 +253,7 @@ class BatchedEnv(VectorSpaces, abc.ABC):
         with self._order:
             if seed is not None:
                 self._seed(seed)
-            self._reset_all()
+            self._reset_where(self.buffers.all_envs, None)
         return self.obs_buf.clone(), self._outputs()
 
     def restart(self, start: int, stop: int, seed: int) -> "torch.Tensor":
