@@ -17,6 +17,7 @@ import warp as wp
 
 from ..settings.config import EnvConfig, TaskConfig
 from ..settings.deprecation import REMOVED_IN, caller_level
+from .step_rules import all_within, clip_actions, role_state, set_role_state
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
@@ -138,26 +139,13 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
 
     @wp.func
     def read_joints(robot: Robot, env: int):
-        q, qd = Joints(), Joints()
-        base = env * robot.dofs_per_env
-        for r in range(num_joints):
-            q[r] = robot.joint_q[base + robot.role_dofs[r]]
-            qd[r] = robot.joint_qd[base + robot.role_dofs[r]]
-        return q, qd
+        return role_state(robot.joint_q, robot.joint_qd, robot.role_dofs, env * robot.dofs_per_env, Joints())
 
     @wp.func
     def all_finite(q: Joints, qd: Joints):
         ok = True
         for r in range(num_joints):
             ok = ok and wp.isfinite(q[r]) and wp.isfinite(qd[r])
-        return ok
-
-    @wp.func
-    def all_within(q: Joints, qd: Joints, limit: float):
-        """Every joint position and velocity within +-``limit`` (so finite: a NaN fails the comparison)."""
-        ok = True
-        for r in range(num_joints):
-            ok = ok and wp.abs(q[r]) <= limit and wp.abs(qd[r]) <= limit
         return ok
 
     @wp.func
@@ -179,9 +167,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         for d in range(robot.dofs_per_env):
             robot.joint_q[base + d] = 0.0
             robot.joint_qd[base + d] = 0.0
-        for r in range(num_joints):
-            robot.joint_q[base + robot.role_dofs[r]] = q[r]
-            robot.joint_qd[base + robot.role_dofs[r]] = qd[r]
+        set_role_state(q, qd, robot.role_dofs, base, robot.joint_q, robot.joint_qd)
         episodes.last_q[env] = q
         episodes.last_qd[env] = qd
         episodes.obs[env] = noisy(fns.observe(q, qd, p), settings.noise_std, episodes.rng_state, env)
@@ -229,8 +215,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         if not finite:
             a = Actions()
             wp.atomic_add(nonfinite_action_count, 0, 1)
-        for i in range(num_actions):
-            a[i] = wp.clamp(a[i], -1.0, 1.0)
+        a = clip_actions(a)
         actions[env] = a
         slots = action_history.shape[1]
         step = episodes.steps_run[env]

@@ -418,15 +418,22 @@ def friction_force(friction: float, velocity: float):
     return friction * wp.tanh(velocity / FRICTION_VELOCITY)
 
 
+@wp.func
+def forces_less_friction(env: int, dofs_per_env: int, role_dofs: wp.array(dtype=wp.int32),
+                         forces: wp.array2d(dtype=float), friction: wp.array2d(dtype=float),
+                         joint_qd: wp.array(dtype=float), joint_f: wp.array(dtype=float)):
+    """Env ``env``'s joint_f = its roles' ``forces`` - friction * tanh(velocity / FRICTION_VELOCITY), per role (before
+    each physics step; the env's and the differentiable rollout's)."""
+    for r in range(friction.shape[1]):
+        dof = env * dofs_per_env + role_dofs[r]
+        joint_f[dof] = forces[env, r] - friction_force(friction[env, r], joint_qd[dof])
+
+
 @wp.kernel(enable_backward=False)
 def add_friction(dofs_per_env: int, role_dof: wp.array(dtype=wp.int32), actuator_f: wp.array2d(dtype=float),
                  friction: wp.array2d(dtype=float), joint_qd: wp.array(dtype=float), joint_f: wp.array(dtype=float)):
-    """joint_f = the actuator's force - friction * tanh(velocity / FRICTION_VELOCITY), per role (before each physics
-    step)."""
-    env = wp.tid()
-    for r in range(friction.shape[1]):
-        dof = env * dofs_per_env + role_dof[r]
-        joint_f[dof] = actuator_f[env, r] - friction_force(friction[env, r], joint_qd[dof])
+    """``forces_less_friction`` of the actuators' forces in every env."""
+    forces_less_friction(wp.tid(), dofs_per_env, role_dof, actuator_f, friction, joint_qd, joint_f)
 
 
 __getattr__ = renamed(__name__, {"Physics": "PhysicalParams"})

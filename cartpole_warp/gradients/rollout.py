@@ -33,9 +33,10 @@ import warp as wp
 
 from ..engine.env import BatchedEnv
 from ..engine.kernels import END_NONE, TaskFunctions, kernel_params, params_of
-from ..engine.randomization import EnvPhysics, Layout, ModelFields, friction_force, write_env
+from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_friction, write_env
 from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
+from ..engine.step_rules import all_within, clip_actions, role_state, set_role_state
 from ..engine.streams import StreamOrder
 
 
@@ -55,6 +56,33 @@ class Trajectory:
     terminated: torch.Tensor
 
 
+@wp.struct
+class StepConstants:
+    """What the step's kernels read besides the state: where each joint role's dof sits in an env's (``role_dofs``, of
+    ``dofs_per_env``), and the joint magnitude beyond which a state has diverged (``sim.divergence_limit``)."""
+
+    role_dofs: wp.array(dtype=int)
+    dofs_per_env: int
+    divergence_limit: float
+
+
+def step_constants(scene, divergence_limit: float, device: str) -> StepConstants:
+    """The ``StepConstants`` of a rollout's ``engine.scene.Scene`` on ``device``."""
+    constants = StepConstants()
+    constants.role_dofs = wp.array(scene.role_dofs, dtype=int, device=device)
+    constants.dofs_per_env, constants.divergence_limit = scene.dofs_per_env, float(divergence_limit)
+    return constants
+
+
+@wp.func
+def row_of(values: wp.array2d(dtype=float), env: int, like: Any):
+    """Row ``env`` of ``values`` as a vector of ``like``'s type (a task's ``Joints`` or ``Actions``)."""
+    v = type(like)()
+    for i in range(len(like)):
+        v[i] = values[env, i]
+    return v
+
+
 @functools.cache
 def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joints: int, num_actions: int,
                            num_obs: int, name: str) -> Any:
@@ -70,55 +98,40 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
         write_env(wp.tid(), layout, physics, model)
 
     @kernel
-    def set_joints(q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), role_dofs: wp.array(dtype=int),
-                   dofs_per_env: int, joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float)):
+    def set_joints(q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), constants: StepConstants,
+                   joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float)):
         env = wp.tid()
-        for r in range(num_joints):
-            joint_q[env * dofs_per_env + role_dofs[r]] = q[env, r]
-            joint_qd[env * dofs_per_env + role_dofs[r]] = qd[env, r]
+        set_role_state(row_of(q, env, Joints()), row_of(qd, env, Joints()), constants.role_dofs,
+                       env * constants.dofs_per_env, joint_q, joint_qd)
 
     @kernel
     def actuate(p: Params, actions: wp.array2d(dtype=float), actuator_scale: wp.array(dtype=float),
                 forces: wp.array2d(dtype=float)):
         env = wp.tid()
-        a = Actions()
-        for i in range(num_actions):
-            a[i] = wp.clamp(actions[env, i], -1.0, 1.0)
-        f = fns.joint_forces(a, p, Joints()) * actuator_scale[env]
+        f = fns.joint_forces(clip_actions(row_of(actions, env, Actions())), p, Joints()) * actuator_scale[env]
         for r in range(num_joints):
             forces[env, r] = f[r]
 
     @kernel
-    def add_friction(forces: wp.array2d(dtype=float), friction: wp.array2d(dtype=float),
-                     role_dofs: wp.array(dtype=int), dofs_per_env: int, joint_qd: wp.array(dtype=float),
-                     joint_f: wp.array(dtype=float)):
-        env = wp.tid()
-        for r in range(num_joints):
-            dof = env * dofs_per_env + role_dofs[r]
-            joint_f[dof] = forces[env, r] - friction_force(friction[env, r], joint_qd[dof])
+    def add_friction(forces: wp.array2d(dtype=float), friction: wp.array2d(dtype=float), constants: StepConstants,
+                     joint_qd: wp.array(dtype=float), joint_f: wp.array(dtype=float)):
+        forces_less_friction(wp.tid(), constants.dofs_per_env, constants.role_dofs, forces, friction, joint_qd,
+                             joint_f)
 
     @kernel
-    def read_step(p: Params, joint_q: wp.array(dtype=float), joint_qd: wp.array(dtype=float),
-                  role_dofs: wp.array(dtype=int), dofs_per_env: int, divergence_limit: float,
-                  actions: wp.array2d(dtype=float),
+    def read_step(p: Params, constants: StepConstants, joint_q: wp.array(dtype=float),
+                  joint_qd: wp.array(dtype=float), actions: wp.array2d(dtype=float),
                   q_out: wp.array2d(dtype=float), qd_out: wp.array2d(dtype=float), obs: wp.array2d(dtype=float),
                   rewards: wp.array(dtype=float), terminated: wp.array(dtype=wp.int32)):
         env = wp.tid()
-        q, qd, a = Joints(), Joints(), Actions()
+        q, qd = role_state(joint_q, joint_qd, constants.role_dofs, env * constants.dofs_per_env, Joints())
         for r in range(num_joints):
-            q[r] = joint_q[env * dofs_per_env + role_dofs[r]]
-            qd[r] = joint_qd[env * dofs_per_env + role_dofs[r]]
             q_out[env, r] = q[r]
             qd_out[env, r] = qd[r]
-        for i in range(num_actions):
-            a[i] = wp.clamp(actions[env, i], -1.0, 1.0)
-        reward, end = fns.reward_and_end(q, qd, a, p)
-        within = 1  # as the env judges a state: beyond the divergence limit (or NaN) ends it with reward 0
-        for r in range(num_joints):
-            if not (wp.abs(q[r]) <= divergence_limit and wp.abs(qd[r]) <= divergence_limit):
-                within = 0
-        rewards[env] = wp.where(within == 1, reward, 0.0)
-        terminated[env] = wp.where(end != END_NONE or within == 0, 1, 0)
+        reward, end = fns.reward_and_end(q, qd, clip_actions(row_of(actions, env, Actions())), p)
+        within = all_within(q, qd, constants.divergence_limit)  # as the env judges a state
+        rewards[env] = wp.where(within, reward, 0.0)
+        terminated[env] = wp.where(end != END_NONE or not within, 1, 0)
         o = fns.observe(q, qd, p)
         for i in range(num_obs):
             obs[env, i] = o[i]
@@ -126,11 +139,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
     @kernel
     def observe(p: Params, q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), obs: wp.array2d(dtype=float)):
         env = wp.tid()
-        qv, qdv = Joints(), Joints()
-        for r in range(num_joints):
-            qv[r] = q[env, r]
-            qdv[r] = qd[env, r]
-        o = fns.observe(qv, qdv, p)
+        o = fns.observe(row_of(q, env, Joints()), row_of(qd, env, Joints()), p)
         for i in range(num_obs):
             obs[env, i] = o[i]
 
@@ -219,21 +228,19 @@ class EnvStep:
 
     def launch(self, rollout: "DifferentiableRollout"):
         r, k, dev, n = rollout, rollout.kernels, rollout.device, rollout.num_envs
-        dofs = r.dofs_per_env
         first = self.states[0]
-        wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.role_dofs, dofs],
+        wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.constants],
                   outputs=[first.joint_q, first.joint_qd], device=dev)
         wp.launch(k.actuate, n, inputs=[r.params, self.actions, r.actuator_scale], outputs=[self.forces], device=dev)
         for i in range(r.decimation):
             state, control = self.states[i], self.controls[i]
-            wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.role_dofs, dofs, state.joint_qd],
+            wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.constants, state.joint_qd],
                       outputs=[control.joint_f], device=dev)
             solver = self.solvers[i // r.mass_matrix_interval]
             solver._step = i % r.mass_matrix_interval  # 0: build the mass matrix, else read the one built
             solver.step(state, self.states[i + 1], control, None, r.physics_dt)
         last = self.states[-1]
-        wp.launch(k.read_step, n, inputs=[r.params, last.joint_q, last.joint_qd, r.role_dofs, dofs,
-                                          r.sim.divergence_limit, self.actions],
+        wp.launch(k.read_step, n, inputs=[r.params, r.constants, last.joint_q, last.joint_qd, self.actions],
                   outputs=[self.q_out, self.qd_out, self.obs, self.rewards, self.terminated], device=dev)
 
 
@@ -365,7 +372,7 @@ class DifferentiableRollout:
         scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
                             requires_grad=True)
         self.model, self.dofs_per_env = scene.model, scene.dofs_per_env
-        self.role_dofs = wp.array(scene.role_dofs, dtype=int, device=self.device)
+        self.constants = step_constants(scene, cfg.sim.divergence_limit, self.device)
         self.inertia_solver = scene.solver
         self.physical = env.physics
         self.layout = env.physics.layout  # the same stage and env count: the same places
