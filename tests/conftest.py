@@ -115,6 +115,28 @@ def random_actions():
     return actions
 
 
+SB3_EXTRA = "pip install -e '.[sb3]'"
+VIDEO_EXTRA = "pip install -e '.[video]'"
+
+
+def optional_module(name: str, install: str):
+    """``pytest.importorskip(name)`` whose reason is the install line; where ``CI`` is set the ImportError fails
+    instead (.ci/run installs every extra the tests use)."""
+    if os.environ.get("CI"):
+        return importlib.import_module(name)
+    return pytest.importorskip(name, reason=f"needs {name.split('.')[0]}: {install}")
+
+
+def writes_mp4() -> bool:
+    """Whether this machine writes MP4s (the video extra: imageio with its ffmpeg); fails where ``CI`` is set and it
+    does not."""
+    from cartpole_warp.viz.record import video_available
+
+    if not video_available() and os.environ.get("CI"):
+        pytest.fail(f"needs the video extra: {VIDEO_EXTRA} (.ci/run installs it; CI is set)")
+    return video_available()
+
+
 def system_command(name: str, install: str) -> str:
     """The path of system command ``name``; where it is missing, the test skips with the install line (fails where
     ``CI`` is set: .ci/run installs it)."""

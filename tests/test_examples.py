@@ -6,9 +6,11 @@ import subprocess
 import sys
 
 import pytest
-from stable_baselines3 import PPO
+from conftest import SB3_EXTRA, optional_module
 
 from cartpole_warp import TaskGymEnv
+
+PPO = optional_module("stable_baselines3", SB3_EXTRA).PPO
 
 
 def run_example(repo, name, *args, cwd):

@@ -4,13 +4,12 @@ registered task."""
 import math
 
 import gymnasium as gym
-import imageio.v2 as imageio
 import numpy as np
 import pytest
 import torch
+from conftest import SB3_EXTRA, optional_module
 from gymnasium.wrappers import RecordVideo
 from gymnasium.wrappers.vector import RecordVideo as VectorRecordVideo
-from stable_baselines3.common.vec_env import VecVideoRecorder
 
 import cartpole_warp
 from cartpole_warp.viz.frames import EnvFrames
@@ -27,7 +26,17 @@ VIDEO_STEPS = 37
 both recorders use, writes all of them (for some other counts it drops the last)."""
 
 
+GYM_VIDEO_EXTRA = "pip install -e '.[gym-video]'"
+
+
+def recorders_write_video():
+    """Skip unless the recorders' moviepy (and imageio, which reads their MP4s back) is installed."""
+    optional_module("moviepy", GYM_VIDEO_EXTRA)
+
+
 def decoded_frames(folder):
+    import imageio.v2 as imageio  # moviepy's dependency
+
     (video,) = folder.glob("*.mp4")
     return [frame for frame in imageio.get_reader(video)]  # list() asks the reader's length, which is infinite
 
@@ -39,6 +48,7 @@ def expected_fps(env_id):
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_record_video_around_the_single_env(env_id, tmp_path):
+    recorders_write_video()
     env = gym.make(env_id, render_mode="rgb_array")
     assert env.metadata["render_fps"] == expected_fps(env_id) and env.metadata["render_modes"] == ["rgb_array"]
     assert expected_fps(env_id) == (60 if IDS[env_id][0] in ("cartpole-balance", "cartpole-balance-sparse",
@@ -57,6 +67,7 @@ def test_record_video_around_the_single_env(env_id, tmp_path):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_record_video_around_the_vector_env_draws_only_what_it_records(task, tmp_path):
+    recorders_write_video()
     envs = gym.make_vec(TASK_IDS[task], num_envs=8, vectorization_mode="vector_entry_point", render_mode="rgb_array")
     assert envs.metadata["render_fps"] == expected_fps(TASK_IDS[task])
     frames = envs.render()
@@ -72,6 +83,8 @@ def test_record_video_around_the_vector_env_draws_only_what_it_records(task, tmp
 
 @pytest.mark.parametrize("task", TASKS)
 def test_sb3_vec_video_recorder(task, tmp_path):
+    recorders_write_video()
+    VecVideoRecorder = optional_module("stable_baselines3.common.vec_env", SB3_EXTRA).VecVideoRecorder
     from cartpole_warp.wrappers.sb3 import TaskSb3VecEnv
 
     venv = TaskSb3VecEnv(cartpole_warp.tasks.make(task, num_envs=8), render_mode="rgb_array")

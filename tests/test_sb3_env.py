@@ -4,15 +4,17 @@ a short PPO run."""
 import numpy as np
 import pytest
 import torch
-from stable_baselines3 import PPO
-from stable_baselines3.common.env_checker import check_env as sb3_check_env
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import VecEnv
+from conftest import SB3_EXTRA, optional_module
 
 import cartpole_warp
 from cartpole_warp import TaskGymEnv
 from cartpole_warp.wrappers.gymnasium import env_ids
-from cartpole_warp.wrappers.sb3 import TaskSb3VecEnv
+
+PPO = optional_module("stable_baselines3", SB3_EXTRA).PPO
+sb3_check_env = optional_module("stable_baselines3.common.env_checker", SB3_EXTRA).check_env
+Monitor = optional_module("stable_baselines3.common.monitor", SB3_EXTRA).Monitor
+VecEnv = optional_module("stable_baselines3.common.vec_env", SB3_EXTRA).VecEnv
+TaskSb3VecEnv = optional_module("cartpole_warp.wrappers.sb3", SB3_EXTRA).TaskSb3VecEnv
 
 TASKS = cartpole_warp.tasks.names()
 SHORT_EPISODES = {"episode_length_s": 0.2}
