@@ -237,11 +237,12 @@ def test_newton_trajectory_matches_closed_form(solver):
 
     def two_steps():  # the force of the step, the step, its state recorded; twice, to end in state_0 again
         for current, following in ((state_0, state_1), (state_1, state_0)):
-            wp.launch(apply_force, 3, inputs=[forces_wp, step, dofs, cart_dof], outputs=[control.joint_f])
+            wp.launch(apply_force, 3, inputs=[forces_wp, step, dofs, cart_dof], outputs=[control.joint_f],
+                      device="cpu")  # not Warp's default device, a GPU where the host has one: the arrays are the CPU's
             sim.step(current, following, control, None, PHYSICS_DT_S)
             wp.launch(record_state, 3, inputs=[following.joint_q, following.joint_qd, dofs, cart_dof, pole_dof, step],
-                      outputs=[traj])
-            wp.launch(next_step, 1, outputs=[step])
+                      outputs=[traj], device="cpu")
+            wp.launch(next_step, 1, outputs=[step], device="cpu")
 
     # Captured once as a Warp graph and replayed (on the CPU too): launched one by one from Python, the 4800 steps
     # took 26 s with mujoco (7 s with featherstone); replayed, well under 1 s.
