@@ -11,12 +11,14 @@ from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
-def runner(device, cuda_graph, task="cartpole-balance", num_envs=4096):
+def runner(device, cuda_graph, task="cartpole-balance", num_envs=4096, evaluated=False):
+    """A runner of ``task`` on ``device``; ``evaluated``: with its evaluation envs (else it judges nothing)."""
     cfg = train_config(task)
     cfg.env.num_envs, cfg.env.device, cfg.agent.cuda_graph, cfg.stop_when_solved = num_envs, device, cuda_graph, True
+    eval_env = cartpole_warp.make_env(num_envs=cfg.eval.num_envs, device=device, seed=0) if evaluated else None
     torch.manual_seed(0)
     return TaskRunner(RslRlVecEnv(cartpole_warp.tasks.make(task, num_envs=num_envs, device=device, seed=0)), cfg,
-                      None)
+                      None, eval_env)
 
 
 @pytest.fixture
@@ -63,8 +65,7 @@ def test_a_graphed_pixel_update_equals_the_launched_one(cuda):
 
 
 def test_graphed_training_solves(cuda):
-    trained = runner(cuda, True)
-    trained.eval_env = cartpole_warp.make_env(num_envs=trained.train_cfg.eval.num_envs, device=cuda, seed=0)
+    trained = runner(cuda, True, evaluated=True)
     trained.learn(150)
     assert trained.stop_reason == "solved", trained.progress.history[-1]
 
