@@ -88,6 +88,7 @@ def test_a_task_written_with_the_old_evaluate_name_gets_its_reward_and_end():
 @pytest.mark.parametrize("module, old, new", [
     ("evaluation.rollouts", "NO_LIMIT_STEPS", "STEPS_WITHOUT_TIME_LIMIT"),
     ("engine.randomization", "Physics", "PhysicalParams"), ("engine.streams", "TorchOrder", "StreamOrder"),
+    ("engine.kernels", "kernel_params", "kernel_constants"), ("engine.kernels", "params_of", "constants_of"),
 ])
 def test_the_renamed_engine_and_evaluation_names_answer_for_a_release(module, old, new):
     loaded = importlib.import_module(f"cartpole_warp.{module}")

@@ -20,7 +20,7 @@ from ..settings.config import EnvConfig, TaskConfig, check_seed
 from ..settings.files import data_path
 from . import randomization
 from .buffers import EnvBuffers
-from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, init_rng, params_of, step_settings
+from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, constants_of, init_rng, step_settings
 from .observations import observations_of
 from .randomization import PhysicalParams
 from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output
@@ -111,7 +111,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         with timed(self.build_time_s, "scene"):
             self.shards = [Shard(i, start, stop, build_scene(stop - start, self.device, cfg.sim, stage, joints))
                            for i, (start, stop) in enumerate(bounds)]
-        self.params = params_of(self.config_class, cfg.task)
+        self.task_constants = constants_of(self.config_class, cfg.task)
         self._role_dofs = wp.array(self.scene.role_dofs, dtype=int, device=self.device)
         from .streams import StreamOrder  # torch, imported once an env is built
 
@@ -179,13 +179,12 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         self.buffers.torch.time_out_count.copy_(value)
 
     def _apply_actions(self, shard: Shard):
-        robot, episodes, _ = self._shard_structs[shard.index]
-        rows = shard.rows
-        wp.launch(self._kernels.apply_actions, dim=shard.num_envs,
-                  inputs=[self.params, robot, episodes, rows(self.physics.delay), rows(self.physics.actuator_scale)],
-                  outputs=[rows(self.buffers.actions), rows(self.buffers.action_history), rows(self.buffers.actuator_f),
-                           shard.slot(self.buffers.nonfinite_actions)],
-                  device=self.device)
+        (robot, episodes, _), rows, b = self._shard_structs[shard.index], shard.rows, self.buffers
+        wp.launch(self._kernels.apply_actions, dim=shard.num_envs, device=self.device,
+                  inputs=[self.task_constants, robot, episodes, rows(self.physics.delay),
+                          rows(self.physics.actuator_scale)],
+                  outputs=[rows(b.actions), rows(b.action_history), rows(b.actuator_f),
+                           shard.slot(b.nonfinite_actions)])
 
     def _simulate(self, shard: Shard):
         """``decimation`` solver steps, each after the joints' friction where it is randomized."""
@@ -208,7 +207,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         self._simulate(shard)
         self.observations.after_physics(shard)
         wp.launch(self._kernels.end_step, dim=shard.num_envs,
-                  inputs=[self.params, self._settings, robot, shard.rows(b.actions)],
+                  inputs=[self.task_constants, self._settings, robot, shard.rows(b.actions)],
                   outputs=[episodes, results, shard.slot(b.nonfinite_states), shard.slot(b.diverged_states)],
                   device=self.device)
         self.observations.after_step(shard, results)
@@ -230,7 +229,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         for shard in self.shards:
             robot, episodes, _ = self._shard_structs[shard.index]
             wp.launch(self._kernels.reset_masked, dim=shard.num_envs,
-                      inputs=[shard.rows(mask), self.params, self._settings],
+                      inputs=[shard.rows(mask), self.task_constants, self._settings],
                       outputs=[robot, episodes], device=self.device)
             self.observations.start(shard, mask)
             if self.physics.drawn:
@@ -302,8 +301,8 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
             for shard in self.shards:
                 robot, episodes, _ = self._shard_structs[shard.index]
                 wp.launch(self._kernels.set_states_masked, dim=shard.num_envs,
-                          inputs=[shard.rows(self.buffers.states_in), shard.rows(self.buffers.mask_in), self.params,
-                                  self._settings],
+                          inputs=[shard.rows(self.buffers.states_in), shard.rows(self.buffers.mask_in),
+                                  self.task_constants, self._settings],
                           outputs=[robot, episodes], device=self.device)
                 self.observations.start(shard, self.buffers.mask_in)
         return self.obs_buf.clone()

@@ -1,5 +1,5 @@
 """The Warp side of ``BatchedEnv``, robot-agnostic: end codes, the four functions a task writes (``TaskFunctions``),
-the struct of a task config's constants (``kernel_params``) and ``build_kernels``, which inlines a task's functions
+the struct of a task config's constants (``kernel_constants``) and ``build_kernels``, which inlines a task's functions
 into the machinery's kernels (one Warp module per task, compiled on first use and cached on disk).
 
 The kernels take structs of arrays, one thread per env: ``Robot`` (the shard's joint state and forces), ``Episodes``
@@ -16,7 +16,7 @@ from typing import Any
 import warp as wp
 
 from ..settings.config import EnvConfig, TaskConfig
-from ..settings.deprecation import REMOVED_IN, caller_level
+from ..settings.deprecation import REMOVED_IN, caller_level, renamed
 from .step_rules import all_within, clip_actions, role_state, set_role_state
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
@@ -38,21 +38,21 @@ def _struct(name: str, module: str, fields: dict[str, Any], doc: str) -> type:
 
 
 @functools.cache
-def kernel_params(config_class: type[TaskConfig]) -> type:
+def kernel_constants(config_class: type[TaskConfig]) -> type:
     """The Warp struct of a task config's float fields, each under its own name: the task's constants in its Warp
     functions (written once, in the dataclass; one struct per config class, a subclass's with its own fields)."""
     fields = [name for name, kind in typing.get_type_hints(config_class).items() if kind is float]
-    return _struct(f"{config_class.__name__}Params", config_class.__module__, dict.fromkeys(fields, float),
+    return _struct(f"{config_class.__name__}Constants", config_class.__module__, dict.fromkeys(fields, float),
                    f"The float fields of {config_class.__name__}, generated from it.")
 
 
-def params_of(config_class: type[TaskConfig], task: TaskConfig) -> Any:
+def constants_of(config_class: type[TaskConfig], task: TaskConfig) -> Any:
     """The kernels' copy of a task config's constants (``task``: a ``config_class``)."""
-    struct = kernel_params(config_class)
-    params = struct()
+    struct = kernel_constants(config_class)
+    constants = struct()
     for name in struct.vars:
-        setattr(params, name, getattr(task, name))
-    return params
+        setattr(constants, name, getattr(task, name))
+    return constants
 
 
 def step_settings(kernels: SimpleNamespace, cfg: EnvConfig) -> Any:
@@ -68,7 +68,7 @@ def step_settings(kernels: SimpleNamespace, cfg: EnvConfig) -> Any:
 class TaskFunctions:
     """A task's Warp functions (``@wp.func``). ``Joints`` is ``wp.types.vector(len(joint roles), float)`` in the order
     of the task's roles, ``Obs`` and ``Actions`` vectors of ``num_obs`` and ``num_actions`` floats, ``p`` the struct
-    of the task config's constants (``kernel_params``): type it ``Any``, so that a variant's config reuses the
+    of the task config's constants (``kernel_constants``): type it ``Any``, so that a variant's config reuses the
     function."""
 
     observe: Any
@@ -113,7 +113,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
     Actions = wp.types.vector(num_actions, float)
     Obs = wp.types.vector(num_obs, float)
     State = wp.types.vector(2 * num_joints, float)
-    Params = kernel_params(config_class)
+    Constants = kernel_constants(config_class)
     kernel = functools.partial(wp.kernel, module=name, enable_backward=False)
     prefix = name.replace(".", "_")
     Robot = _struct(f"{prefix}_Robot", __name__, {
@@ -160,7 +160,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         return out
 
     @wp.func
-    def begin_episode(env: int, q: Joints, qd: Joints, p: Params, settings: StepSettings, robot: Robot,
+    def begin_episode(env: int, q: Joints, qd: Joints, p: Constants, settings: StepSettings, robot: Robot,
                       episodes: Episodes):
         """Every dof of the env at 0, then the roles' joints at ``q``, ``qd``; a new episode's first observation."""
         base = env * robot.dofs_per_env
@@ -176,7 +176,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         episodes.episode_return[env] = 0.0
 
     @wp.func
-    def judge(env: int, q: Joints, qd: Joints, a: Actions, p: Params, settings: StepSettings, episodes: Episodes,
+    def judge(env: int, q: Joints, qd: Joints, a: Actions, p: Constants, settings: StepSettings, episodes: Episodes,
               nonfinite_state_count: wp.array(dtype=wp.int32), diverged_state_count: wp.array(dtype=wp.int32)):
         """(observation, reward, end reason) of the state after the physics, the time limit aside. A non-finite
         state, or one beyond ``divergence_limit``, keeps the last sound observation, earns 0 and is counted; its end
@@ -200,7 +200,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         return o, r, reason
 
     @kernel
-    def apply_actions(p: Params, robot: Robot, episodes: Episodes, delay: wp.array(dtype=wp.int32),
+    def apply_actions(p: Constants, robot: Robot, episodes: Episodes, delay: wp.array(dtype=wp.int32),
                       actuator_scale: wp.array(dtype=float), actions: wp.array(dtype=Actions),
                       action_history: wp.array2d(dtype=Actions), actuator_f: wp.array2d(dtype=float),
                       nonfinite_action_count: wp.array(dtype=wp.int32)):
@@ -241,7 +241,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         actions[env] = a
 
     @kernel
-    def end_step(p: Params, settings: StepSettings, robot: Robot, actions: wp.array(dtype=Actions),
+    def end_step(p: Constants, settings: StepSettings, robot: Robot, actions: wp.array(dtype=Actions),
                  episodes: Episodes, results: StepResults, nonfinite_state_count: wp.array(dtype=wp.int32),
                  diverged_state_count: wp.array(dtype=wp.int32)):
         """After the physics: judge the state (``judge``), apply the time limit, hand back the step's results and
@@ -284,7 +284,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
             begin_episode(env, q0, qd0, p, settings, robot, episodes)
 
     @kernel
-    def reset_masked(mask: wp.array(dtype=wp.bool), p: Params, settings: StepSettings, robot: Robot,
+    def reset_masked(mask: wp.array(dtype=wp.bool), p: Constants, settings: StepSettings, robot: Robot,
                      episodes: Episodes):
         """Start a new episode from the task's random start in every env where ``mask`` is set."""
         env = wp.tid()
@@ -293,7 +293,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
             begin_episode(env, q, qd, p, settings, robot, episodes)
 
     @kernel
-    def set_states_masked(states: wp.array(dtype=State), mask: wp.array(dtype=wp.bool), p: Params,
+    def set_states_masked(states: wp.array(dtype=State), mask: wp.array(dtype=wp.bool), p: Constants,
                           settings: StepSettings, robot: Robot, episodes: Episodes):
         """Start a new episode from ``states`` (per joint role: position, velocity) where ``mask`` is set."""
         env = wp.tid()
@@ -305,7 +305,11 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
                 qd[r] = s[2 * r + 1]
             begin_episode(env, q, qd, p, settings, robot, episodes)
 
-    return SimpleNamespace(Joints=Joints, Actions=Actions, Obs=Obs, State=State, Params=Params, Robot=Robot,
+    return SimpleNamespace(Joints=Joints, Actions=Actions, Obs=Obs, State=State, Constants=Constants, Robot=Robot,
                            Episodes=Episodes, StepResults=StepResults, StepSettings=StepSettings,
                            apply_actions=apply_actions, random_actions=random_actions, end_step=end_step,
                            reset_masked=reset_masked, set_states_masked=set_states_masked)
+
+
+__getattr__ = renamed(__name__, {"kernel_params": "kernel_constants", "params_of": "constants_of"})
+"""The old names (``params`` is the physical parameters' word), until ``settings.deprecation.REMOVED_IN``."""

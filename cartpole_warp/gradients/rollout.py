@@ -32,7 +32,7 @@ import torch
 import warp as wp
 
 from ..engine.env import BatchedEnv
-from ..engine.kernels import END_NONE, TaskFunctions, kernel_params, params_of
+from ..engine.kernels import END_NONE, TaskFunctions, constants_of, kernel_constants
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_friction, write_env
 from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
@@ -90,7 +90,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
     fns = functions
     Joints = wp.types.vector(num_joints, float)
     Actions = wp.types.vector(num_actions, float)
-    Params = kernel_params(config_class)
+    Constants = kernel_constants(config_class)
     kernel = functools.partial(wp.kernel, module=name, enable_backward=True)
 
     @kernel
@@ -105,7 +105,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
                        env * constants.dofs_per_env, joint_q, joint_qd)
 
     @kernel
-    def actuate(p: Params, actions: wp.array2d(dtype=float), actuator_scale: wp.array(dtype=float),
+    def actuate(p: Constants, actions: wp.array2d(dtype=float), actuator_scale: wp.array(dtype=float),
                 forces: wp.array2d(dtype=float)):
         env = wp.tid()
         f = fns.joint_forces(clip_actions(row_of(actions, env, Actions())), p, Joints()) * actuator_scale[env]
@@ -119,7 +119,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
                              joint_f)
 
     @kernel
-    def read_step(p: Params, constants: StepConstants, joint_q: wp.array(dtype=float),
+    def read_step(p: Constants, constants: StepConstants, joint_q: wp.array(dtype=float),
                   joint_qd: wp.array(dtype=float), actions: wp.array2d(dtype=float),
                   q_out: wp.array2d(dtype=float), qd_out: wp.array2d(dtype=float), obs: wp.array2d(dtype=float),
                   rewards: wp.array(dtype=float), terminated: wp.array(dtype=wp.int32)):
@@ -137,7 +137,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
             obs[env, i] = o[i]
 
     @kernel
-    def observe(p: Params, q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), obs: wp.array2d(dtype=float)):
+    def observe(p: Constants, q: wp.array2d(dtype=float), qd: wp.array2d(dtype=float), obs: wp.array2d(dtype=float)):
         env = wp.tid()
         o = fns.observe(row_of(q, env, Joints()), row_of(qd, env, Joints()), p)
         for i in range(num_obs):
@@ -231,7 +231,8 @@ class EnvStep:
         first = self.states[0]
         wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.constants],
                   outputs=[first.joint_q, first.joint_qd], device=dev)
-        wp.launch(k.actuate, n, inputs=[r.params, self.actions, r.actuator_scale], outputs=[self.forces], device=dev)
+        wp.launch(k.actuate, n, inputs=[r.task_constants, self.actions, r.actuator_scale], outputs=[self.forces],
+                  device=dev)
         for i in range(r.decimation):
             state, control = self.states[i], self.controls[i]
             wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.constants, state.joint_qd],
@@ -240,7 +241,7 @@ class EnvStep:
             solver._step = i % r.mass_matrix_interval  # 0: build the mass matrix, else read the one built
             solver.step(state, self.states[i + 1], control, None, r.physics_dt)
         last = self.states[-1]
-        wp.launch(k.read_step, n, inputs=[r.params, r.constants, last.joint_q, last.joint_qd, self.actions],
+        wp.launch(k.read_step, n, inputs=[r.task_constants, r.constants, last.joint_q, last.joint_qd, self.actions],
                   outputs=[self.q_out, self.qd_out, self.obs, self.rewards, self.terminated], device=dev)
 
 
@@ -368,7 +369,7 @@ class DifferentiableRollout:
         self.kernels = differentiable_kernels(env.functions, env.config_class, self.num_joints, self.num_actions,
                                               self.num_obs, f"{type(env).__module__}.{type(env).__qualname__}.grad")
         load_modules([self.kernels.write_physics.module], self.device, "the differentiable rollout (with adjoints)")
-        self.params = params_of(env.config_class, cfg.task)
+        self.task_constants = constants_of(env.config_class, cfg.task)
         scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
                             requires_grad=True)
         self.model, self.dofs_per_env = scene.model, scene.dofs_per_env
@@ -406,8 +407,8 @@ class DifferentiableRollout:
         self.inertia_solver._update_body_inertial_buffers()
 
     def _observe(self):
-        wp.launch(self.kernels.observe, self.num_envs, inputs=[self.params, self.q0, self.qd0], outputs=[self.obs0],
-                  device=self.device)
+        wp.launch(self.kernels.observe, self.num_envs, inputs=[self.task_constants, self.q0, self.qd0],
+                  outputs=[self.obs0], device=self.device)
 
     def stage_params(self, requires_grad: bool = False) -> dict[str, torch.Tensor]:
         """The stage's physical parameters, (N,) float32 tensors on the device, by name."""

@@ -245,7 +245,7 @@ def check_range(key: str, bounds: tuple[float, float], low_bound: float | None, 
 @dataclass
 class TaskConfig:
     """What every task's settings hold; a task module subclasses it with its own fields (every float field reaches
-    the task's Warp functions under its own name, see ``kernels.kernel_params``)."""
+    the task's Warp functions under its own name, see ``kernels.kernel_constants``)."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
