@@ -49,8 +49,9 @@ from .settings.presets import presets
 @dataclass
 class PopulationArgs:
     seeds: list[int] = field(default_factory=list)
-    """A population: one run per seed, at once (docs/training.md). Its members share one env
-    of members x num_envs envs and one batched PPO; each writes an ordinary run folder under the population's."""
+    """A population: one run per seed, at once (under torchrun spread over the processes; docs/training.md). Its
+    members share one env of members x num_envs envs and one batched PPO; each writes an ordinary run folder under the
+    population's."""
     vary: list[str] = field(default_factory=list)
     """--seeds: settings the members differ in, name=value1,value2: one member per combination and seed (PPO's
     learning-rate, entropy-coef, gamma, lam, clip-param, desired-kl, value-loss-coef, max-grad-norm), e.g.
