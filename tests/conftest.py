@@ -137,6 +137,12 @@ def writes_mp4() -> bool:
     return video_available()
 
 
+def requires_mp4():
+    """Skip the test, with the install line, where this machine writes no MP4 (``writes_mp4``)."""
+    if not writes_mp4():
+        pytest.skip(f"needs the video extra (imageio with its ffmpeg): {VIDEO_EXTRA}")
+
+
 def system_command(name: str, install: str) -> str:
     """The path of system command ``name``; where it is missing, the test skips with the install line (fails where
     ``CI`` is set: .ci/run installs it)."""

@@ -4,12 +4,9 @@ is without them)."""
 
 from pathlib import Path
 
-import pytest
 import torch
-from conftest import VIDEO_EXTRA, call_main, optional_module, writes_mp4
+from conftest import call_main, requires_mp4
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-imageio = optional_module("imageio.v2", VIDEO_EXTRA)
 
 
 def train(log_dir: Path, *flags) -> Path:
@@ -21,8 +18,9 @@ def train(log_dir: Path, *flags) -> Path:
 
 
 def test_clips_are_written_every_interval_named_in_tensorboard_and_leave_training_alone(tmp_path):
-    if not writes_mp4():
-        pytest.skip(f"needs imageio's ffmpeg: {VIDEO_EXTRA}")
+    requires_mp4()
+    import imageio.v2 as imageio
+
     run = train(tmp_path / "video", "--video", "--video-interval", 2, "--video-length", 5)
     clips = sorted(path.name for path in (run / "videos").iterdir())
     assert clips == ["iteration_1.gif", "iteration_1.mp4", "iteration_3.gif", "iteration_3.mp4"]

@@ -18,7 +18,7 @@ import onnx
 import pytest
 import torch
 import yaml
-from conftest import VIDEO_EXTRA, call_main, optional_module, writes_mp4
+from conftest import call_main, requires_mp4, writes_mp4
 from onnx.reference import ReferenceEvaluator
 from PIL import Image
 
@@ -335,14 +335,14 @@ def test_play_refuses_an_output_folder_it_cannot_write_before_it_builds(run_main
 
 
 def test_play_zero_agent_needs_no_checkpoint(tmp_path, run_main):
-    imageio = optional_module("imageio.v2", VIDEO_EXTRA)
-    if not writes_mp4():
-        pytest.skip(f"needs imageio's ffmpeg: {VIDEO_EXTRA}")
+    requires_mp4()
     result = run_main("play", "--agent", "zero", "--headless", "--log-dir", tmp_path, "--num-envs", "4",
                         "--steps", "300", "--video-length", "25")
     assert result.returncode == 0, result.stderr
     record = json.loads((tmp_path / "play" / "zero" / "result.json").read_text())
     assert record["episodes"] == 4 and record["time_limit_fraction"] == 0.0, "an unpushed pole must fall"
+    import imageio.v2 as imageio
+
     assert sum(1 for _ in imageio.get_reader(tmp_path / "play" / "zero" / "cartpole.mp4")) == 25
 
 

@@ -28,15 +28,13 @@ from .population import Member, MemberLearner, PopulationEvaluation, PopulationL
 from .progress import format_duration
 from .runner import TaskRunner
 from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary, save_config
-from .training import bytes_per_env, finish_run
+from .training import bytes_per_env_by_place, finish_run
 
 
 def check_population_memory(cfg: TrainConfig, members: int, device: str):
     """ConfigError in one line, with the estimate, where ``members`` x ``env.num_envs`` envs (and the evaluation's)
     would not fit in the free memory of the host or of ``device``."""
-    per_env = bytes_per_env(cfg)
-    needs = {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
-    for where, need_per_env in needs.items():
+    for where, need_per_env in bytes_per_env_by_place(cfg, device).items():
         per_member = (cfg.env.num_envs + cfg.eval.num_envs) * need_per_env
         need, free = members * per_member, free_memory_bytes(where)
         if need > free:

@@ -53,14 +53,18 @@ def bytes_per_env(cfg: TrainConfig) -> dict[str, int]:
     return {"host": ENV_BYTES_PER_ENV, "device": frames_bytes + storage + mini_batch}
 
 
+def bytes_per_env_by_place(cfg: TrainConfig, device: str) -> dict[str, int]:
+    """``bytes_per_env`` by where it lies: all in the host's memory on the CPU, else the host's part and the GPU's."""
+    per_env = bytes_per_env(cfg)
+    return {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
+
+
 def check_memory(cfg: TrainConfig, device: str):
     """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs (and the
     evaluation's inside the step, ``eval.in_step``, counted as training envs) would not fit in the free memory of the
     host or of ``device``, before anything is allocated."""
-    per_env = bytes_per_env(cfg)
-    needs = {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
     evaluation_envs = cfg.eval.num_envs if cfg.eval.in_step else 0
-    for where, need_per_env in needs.items():
+    for where, need_per_env in bytes_per_env_by_place(cfg, device).items():
         need, free = (cfg.env.num_envs + evaluation_envs) * need_per_env, free_memory_bytes(where)
         if need > free:
             steps = cfg.agent.num_steps_per_env
