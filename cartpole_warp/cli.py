@@ -19,6 +19,8 @@ from typing import TypeVar
 
 import tyro
 
+from .settings.deprecation import REMOVED_IN
+
 Args = TypeVar("Args")
 
 
@@ -107,6 +109,19 @@ def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:
         _, equals, value = arg.partition("=")
         target = aliases.get(flag_name(arg)) if arg.startswith("--") else None
         out.append(f"{target}{equals}{value}" if target else arg)
+    return out
+
+
+def renamed_flags(argv: list[str], renames: dict[str, str]) -> list[str]:
+    """``argv`` with each old spelling of a flag (``renames``: old -> new) written as the new one, and a line on stderr
+    naming both: the old spelling is taken until ``settings.deprecation.REMOVED_IN``."""
+    out = []
+    for arg in argv:
+        _, equals, value = arg.partition("=")
+        new = renames.get(flag_name(arg)) if arg.startswith("--") else None
+        if new:
+            print(f"note: {flag_name(arg)} is now {new}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
+        out.append(f"{new}{equals}{value}" if new else arg)
     return out
 
 

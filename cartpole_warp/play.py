@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Annotated, Generic, Literal
 import tyro
 
 from . import tasks
-from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, expand_aliases, parse, peek, quiet_libraries
+from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries, renamed_flags
 from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config, with_env_preset
 from .rl.runs import (
@@ -81,7 +81,8 @@ class GridArgs:
 
 GRID_ALIASES = {f"--grid-{name}": f"--grid.{name}" for name in
                 ("x", "x-factors", "y", "y-factors", "z", "z-factors", "episodes")}
-"""The grid's flags as they were spelt before they were grouped (``--grid-x`` for ``--grid.x``): still taken."""
+"""The grid's flags as they were spelt before they were grouped (``--grid-x`` for ``--grid.x``): still taken, with a
+warning, until ``settings.deprecation.REMOVED_IN``."""
 
 
 @dataclass
@@ -150,7 +151,7 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
         require(not first.task or first.task == cfg.task, f"--task {first.task}: the run was trained on {cfg.task}")
     cfg.env.num_envs = cfg.eval.num_envs
     cls = PlayArgs[type(cfg.env.task)]
-    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), expand_aliases(argv, GRID_ALIASES),
+    args = parse(cls, cls(env=cfg.env, task=cfg.task, config=first.config), renamed_flags(argv, GRID_ALIASES),
                  __doc__, ENV_ALIASES)
     require(args.agent == "trained" or not (args.run or args.checkpoint or args.export),
             f"--agent {args.agent} takes no --run, --checkpoint or --export")

@@ -4,7 +4,7 @@
     python train.py --task cartpole-swingup               # another registered task (listed below)
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point
-    python train.py --algorithm apg                       # backpropagation through the simulator (its own defaults)
+    python train.py --learner apg                       # backpropagation through the simulator (its own defaults)
     python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help-all lists them all
     torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096   # 2 GPUs, 4096 envs on each
 
@@ -34,6 +34,7 @@ from .cli import (
     peek,
     process_age_s,
     quiet_libraries,
+    renamed_flags,
     with_default_value,
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
@@ -100,9 +101,12 @@ class IterationHooks(list):
 
 
 ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-name": "--agent.run-name",
-                         "--logger": "--agent.logger", "--algorithm": "--agent.learner",
+                         "--logger": "--agent.logger", "--learner": "--agent.learner",
                          "--seeds": "--population.seeds"}
 """train.py's short flags."""
+RENAMED_FLAGS = {"--algorithm": "--learner"}
+"""Old spellings still taken, with a warning, until ``settings.deprecation.REMOVED_IN`` (``--algorithm`` named the
+learner while ``agent.algorithm`` is PPO's section)."""
 
 
 def task_list() -> str:
@@ -119,7 +123,7 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
 
 def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, TrainArgs]:
     """``resolve``, and the parsed arguments."""
-    argv = with_default_value(argv, "--resume", "latest")
+    argv = with_default_value(renamed_flags(argv, RENAMED_FLAGS), "--resume", "latest")
     first = peek(expand_aliases(argv, ALIASES), task=None, config=None, resume=None, checkpoint=None,
                  log_dir="logs", **{"agent.experiment_name": None, "env.device": None, "agent.learner": None})
     checkpoint = run_dir = None
@@ -260,7 +264,7 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         print(f"on a {here} the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
               f"(its {other} settings differ; a flag changes either)", flush=True)
     if checkpoint is None and (chosen := apg_settings(training.cfg)):
-        print(f"with --algorithm apg the task's settings: {', '.join(f'{n} {v}' for n, v in chosen.items())} "
+        print(f"with --learner apg the task's settings: {', '.join(f'{n} {v}' for n, v in chosen.items())} "
               "(a flag changes any)", flush=True)
     hooks = IterationHooks()
     if args.viewer == "viser":

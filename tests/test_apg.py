@@ -1,4 +1,4 @@
-"""Training by analytic policy gradients through the simulator (``train.py --algorithm apg``, ``rl.apg``): the critic's
+"""Training by analytic policy gradients through the simulator (``train.py --learner apg``, ``rl.apg``): the critic's
 TD(lambda) targets against their definition, the learner's settings and refusals, a run on every state task, a
 resumed run, and the balance trained to solved and played by ``play.py --headless``."""
 
@@ -52,10 +52,10 @@ def test_the_learner_chooses_its_own_settings_and_says_so(tmp_path):
     chosen = tasks.get("cartpole-balance").apg_defaults
     assert cfg.agent.learner == "apg" and cfg.env.num_envs == chosen["env"]["num_envs"] != train_config().env.num_envs
     assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"]
-    result = call_main("train", "--algorithm", "apg", "--num-envs", "8", "--max-iterations", "1", "--device", "cpu",
+    result = call_main("train", "--learner", "apg", "--num-envs", "8", "--max-iterations", "1", "--device", "cpu",
                        "--logger", "none", "--log-dir", tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "with --algorithm apg the task's settings: env.num_envs 8, agent.num_steps_per_env 32" in result.stdout
+    assert "with --learner apg the task's settings: env.num_envs 8, agent.num_steps_per_env 32" in result.stdout
 
 
 @pytest.mark.parametrize(("flags", "message"), [
@@ -65,7 +65,7 @@ def test_the_learner_chooses_its_own_settings_and_says_so(tmp_path):
     (["--env.randomization.obs-noise-std", "0.1"], "env.randomization.obs_noise_std"),
 ])
 def test_what_the_learner_cannot_train_is_one_clear_error(tmp_path, flags, message):
-    result = call_main("train", "--algorithm", "apg", "--num-envs", "4", "--max-iterations", "1", "--device", "cpu",
+    result = call_main("train", "--learner", "apg", "--num-envs", "4", "--max-iterations", "1", "--device", "cpu",
                        "--logger", "none", "--log-dir", tmp_path, *flags)
     assert result.returncode != 0 and message in result.stderr, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
@@ -77,7 +77,7 @@ def test_every_state_task_trains_a_few_windows_and_resumes(tmp_path, task):
     actor moves, and a resumed run takes the learner's optimizers and target critic back."""
     common = ["--task", task, "--num-envs", "8", "--agent.num-steps-per-env", "4", "--device", "cpu", "--logger",
               "none", "--log-dir", tmp_path, "--no-stop-when-solved"]
-    result = call_main("train", "--algorithm", "apg", "--max-iterations", "2", *common)
+    result = call_main("train", "--learner", "apg", "--max-iterations", "2", *common)
     assert result.returncode == 0, result.stdout + result.stderr
     run = only_run(tmp_path, task)
     first = torch.load(run / "model_1.pt", weights_only=False)
@@ -99,13 +99,13 @@ def test_every_state_task_trains_a_few_windows_and_resumes(tmp_path, task):
 @pytest.mark.slow
 def test_the_balance_trains_to_solved_by_backpropagation_and_plays(tmp_path):
     """The learner's defaults on the balance: solved (the same rule, the same evaluation) and replayed by play.py."""
-    summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance", "--algorithm", "apg")
+    summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance", "--learner", "apg")
     assert summary["num_envs"] == tasks.get("cartpole-balance").apg_defaults["env"]["num_envs"]
     assert played["time_limit_fraction"] >= 0.95 and played["mean_reward_per_step"] >= 0.9
 
 
 def test_a_presets_settings_win_over_the_learners_and_flags_over_both():
-    """Precedence: the learner's defaults < the preset < the flags (``--config tutorial --algorithm apg`` built the
+    """Precedence: the learner's defaults < the preset < the flags (``--config tutorial --learner apg`` built the
     learner's 64 envs instead of the tutorial's one)."""
     from cartpole_warp.train import resolve
 
@@ -113,5 +113,5 @@ def test_a_presets_settings_win_over_the_learners_and_flags_over_both():
     cfg = train_config("cartpole-balance", "tutorial", learner="apg")
     assert cfg.env.num_envs == 1 != chosen["env"]["num_envs"], "the preset's env count"
     assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"], "the learner's, the preset silent"
-    flagged, _, _ = resolve(["--config", "tutorial", "--algorithm", "apg", "--num-envs", "3"])
+    flagged, _, _ = resolve(["--config", "tutorial", "--learner", "apg", "--num-envs", "3"])
     assert flagged.env.num_envs == 3 and flagged.agent.learner == "apg"

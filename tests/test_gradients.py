@@ -73,6 +73,32 @@ def test_forward_is_the_envs_own_step(task, sim):
         torch.testing.assert_close(reward, out.rewards[t], rtol=0, atol=1e-5)
 
 
+def test_episode_ends_are_the_envs():
+    """The rollout reports each episode's end as the env does, at the same step and of the same kind: a pole past the
+    task's angle (terminated) and the time limit counted on from each env's ``episode_steps`` (truncated)."""
+    env_dt = cartpole_warp.tasks.env_config("cartpole-balance", num_envs=4).sim.env_dt
+    env = cartpole_warp.tasks.make("cartpole-balance", num_envs=4, device=DEVICE, sim={"gradients": True},
+                                   task={"episode_length_s": 6 * env_dt})
+    rollout = DifferentiableRollout(env, horizon=8)
+    q0 = torch.tensor([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 1.56]], device=DEVICE)
+    qd0 = torch.tensor([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 2.0]], device=DEVICE)
+    counted = torch.tensor([0, 2, 4, 0], device=DEVICE)
+    actions = torch.zeros(8, 4, 1, device=DEVICE)
+    with torch.no_grad():
+        out = rollout(q0, qd0, actions=actions, episode_steps=counted)
+    env.set_state(torch.stack([q0, qd0], dim=2).reshape(4, -1))
+    env.episode_length_buf = counted
+    first_end = {}
+    for t in range(8):
+        _, _, terminated, truncated, _ = env.step(actions[t])
+        for i in range(4):
+            if i not in first_end and (terminated[i] or truncated[i]):
+                first_end[i] = (t, "terminated" if terminated[i] else "truncated")
+    assert first_end == {0: (5, "truncated"), 1: (3, "truncated"), 2: (1, "truncated"), 3: (0, "terminated")}
+    for i, (t, kind) in first_end.items():
+        assert not out.ended[:t, i].any() and getattr(out, kind)[t, i], (i, out.end_reason[:, i].tolist())
+
+
 def test_a_policys_parameters_get_the_gradient_of_the_return():
     rollout = make_rollout("cartpole-balance", horizon=8)
     q0, qd0, _ = start(rollout)

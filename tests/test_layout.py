@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 import cartpole_warp
+from cartpole_warp.cli import renamed_flags
 
 OLD_PATHS = {  # the root modules of 56e07f5 -> their folders
     "env": "engine.env", "kernels": "engine.kernels", "camera": "engine.camera",
@@ -96,7 +97,7 @@ def test_the_renamed_engine_and_evaluation_names_answer_for_a_release(module, ol
         assert getattr(loaded, old) is getattr(loaded, new)
 
 
-def test_the_old_names_go_in_the_release_they_name():
+def test_the_old_names_go_in_the_release_they_name(tmp_path, capsys):
     """Every alias answered for a release says which one drops it (``REMOVED_IN``); once the package's version reaches
     it this test fails: delete the aliases (``renamed``, ``renamed_attribute``, ``moved_names``, ``MOVED_MODULES``, the
     ``evaluate=`` keyword) and this test."""
@@ -109,3 +110,11 @@ def test_the_old_names_go_in_the_release_they_name():
     assert Version(importlib.metadata.version("cartpole_warp")) < Version(REMOVED_IN)
     with pytest.warns(DeprecationWarning, match=f"the old name goes in {REMOVED_IN}"):
         assert importlib.import_module("cartpole_warp.rl.runner").CartpoleRunner.__name__ == "TaskRunner"
+    from cartpole_warp.play import GRID_ALIASES
+    from cartpole_warp.train import RENAMED_FLAGS, resolve
+
+    for old, new in RENAMED_FLAGS.items() | GRID_ALIASES.items():
+        assert renamed_flags([old, "x"], RENAMED_FLAGS | GRID_ALIASES) == [new, "x"]
+        assert f"note: {old} is now {new}; the old spelling goes in {REMOVED_IN}\n" == capsys.readouterr().err
+    cfg, _, _ = resolve(["--algorithm=apg", "--log-dir", str(tmp_path)])
+    assert cfg.agent.learner == "apg" and "--algorithm is now --learner" in capsys.readouterr().err

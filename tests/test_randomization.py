@@ -66,6 +66,28 @@ def test_physical_params_shapes_units_bounds_and_model(task_name, make):
     np.testing.assert_allclose(gravity, params["gravity_m_s2"].cpu().numpy(), rtol=1e-6)
 
 
+def test_parameter_table_names_every_parameter_and_the_docs_say_the_same(make, repo):
+    """Every task's ``physical_params()`` are its table's names (per role, then per env) and the task's own after
+    them; docs/randomization.md's table gives each quantity's name, unit, preset section, settable and differentiable
+    as the code's table does."""
+    from cartpole_warp.engine.parameters import QUANTITIES
+
+    for task_name in TASKS:
+        env = make(2, task_name=task_name)
+        names = [p.name for p in env.physics.table]
+        assert list(env.physical_params())[:len(names)] == names, task_name
+        assert len(names) == 5 * len(env.joint_roles) + 3
+        assert {p.role for p in env.physics.table} == {*env.joint_roles, None}
+    text = (repo / "docs" / "randomization.md").read_text()
+    rows = {line.split("|")[1].strip().split(" ")[0].strip("`"): [cell.strip() for cell in line.split("|")[1:-1]]
+            for line in text.splitlines() if line.startswith("| `")}
+    for quantity in QUANTITIES:
+        row = rows[quantity.name("<role>", slider=True)]
+        assert quantity.slider_unit in row[2] and quantity.hinge_unit in row[2], quantity.key
+        assert (row[3].startswith(f"`{quantity.section}`") if quantity.section else row[3].startswith("none")), row
+        assert row[4:] == [("yes" if quantity.settable else "no"), ("yes" if quantity.differentiable else "no")], row
+
+
 def test_default_env_simulates_the_stage(make):
     """Without randomization every env reports the stage's values (the classic cart-pole of 1 kg + 1 kg)."""
     params = {name: value.cpu() for name, value in make(8).physical_params().items()}

@@ -119,7 +119,7 @@ def test_a_run_that_will_take_hours_says_so_after_its_first_iteration(capsys):
 
 def test_the_runner_is_one_loop_over_learners_found_by_name():
     """The seam: the runner module stays at most 200 lines, nothing subclasses the runner to change the learning, and
-    a learner is found by its name alone (train.py --algorithm NAME)."""
+    a learner is found by its name alone (train.py --learner NAME)."""
     import ast
     from pathlib import Path
 

@@ -183,7 +183,7 @@ print(sorted({{m.options["enable_backward"] for m in model_modules() + solver_mo
 
 @pytest.mark.slow
 def test_the_first_differentiable_rollout_says_it_compiles_and_warmup_gradients_compiles_it_ahead(tmp_path):
-    """``warmup --gradients`` into an empty kernel cache builds a differentiable rollout (tools.sysid's, --algorithm
+    """``warmup --gradients`` into an empty kernel cache builds a differentiable rollout (tools.sysid's, --learner
     apg's), which says that it compiles; after it, the same rollout with its backward pass compiles nothing."""
     cache = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / "cache")}
     result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance", "--gradients",

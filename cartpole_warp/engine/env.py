@@ -308,11 +308,10 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         return self.obs_buf.clone()
 
     def physical_params(self) -> "dict[str, torch.Tensor]":
-        """What each env simulates, in SI units: (N,) tensors named by what they are. Per joint role:
-        ``<role>_mass_kg`` of the body the role's joint moves, ``<role>_com_m`` (distance from the joint to that body's
-        centre of mass), ``<role>_inertia_kg_m2`` (about the centre of mass, around the joint's axis),
-        ``<role>_damping_n_s_m`` or ``_n_m_s_rad``, ``<role>_friction_n`` or ``_n_m``; then ``actuator_scale`` (on
-        the task's forces), ``gravity_m_s2``, ``action_delay_steps``, and the task's own (``task_physical_params``)."""
+        """What each env simulates, in SI units: (N,) tensors named as in ``physics.table`` (``engine.parameters``:
+        per joint role ``<role>_mass_kg``, ``_com_m``, ``_inertia_kg_m2``, ``_damping_*``, ``_friction_*``; per
+        env ``actuator_scale``, ``gravity_m_s2``, ``action_delay_steps``), then the task's own
+        (``task_physical_params``)."""
         values = self.physics.values()
         return values | self.task_physical_params(values)
 

@@ -17,14 +17,20 @@ import warp as wp
 
 from ..settings.config import EnvConfig, TaskConfig
 from ..settings.deprecation import REMOVED_IN, caller_level, renamed
-from .step_rules import all_within, clip_actions, role_state, set_role_state
+from .step_rules import (
+    END_DIVERGED,
+    END_NONE,
+    END_NONFINITE,
+    END_TIME_LIMIT,
+    all_within,
+    clip_actions,
+    role_state,
+    set_role_state,
+    with_time_limit,
+)
 
 wp.set_module_options({"enable_backward": False})  # this module's kernels are never differentiated
 
-END_NONE = wp.constant(0)
-END_TIME_LIMIT = wp.constant(1)
-END_NONFINITE = wp.constant(2)
-END_DIVERGED = wp.constant(3)
 FIRST_TASK_END = 4
 """A task's own end reasons (failures) are the codes FIRST_TASK_END, FIRST_TASK_END + 1, ... in its ``task_ends``."""
 COMMON_ENDS = ("running", "time_limit", "nonfinite_state", "diverged_state")
@@ -253,8 +259,7 @@ def build_kernels(functions: TaskFunctions, config_class: type[TaskConfig], num_
         o, r, reason = judge(env, q, qd, actions[env], p, settings, episodes, nonfinite_state_count,
                              diverged_state_count)
         count = episodes.time_out_count[env] + 1
-        if reason == END_NONE and count >= settings.max_episode_length:
-            reason = END_TIME_LIMIT
+        reason = with_time_limit(reason, count, settings.max_episode_length)
         ret = episodes.episode_return[env] + r
         results.reward[env] = r
         results.terminated[env] = reason != END_NONE and reason != END_TIME_LIMIT

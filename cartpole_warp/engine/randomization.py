@@ -21,6 +21,18 @@ import warp as wp
 
 from ..settings.config import ConfigError, RandomizationConfig
 from ..settings.deprecation import renamed
+from .parameters import (
+    ACTION_DELAY,
+    ACTUATOR_SCALE,
+    COM,
+    DAMPING,
+    FRICTION,
+    GRAVITY,
+    INERTIA,
+    MASS,
+    Quantity,
+    parameter_table,
+)
 from .scene import Scene
 
 if TYPE_CHECKING:
@@ -209,6 +221,8 @@ class PhysicalParams:
         self.cfg, self.roles, self.device = cfg, roles, device
         self.sliders = [kind == newton.JointType.PRISMATIC for kind in kinds]
         """Per role: whether its joint slides (forces in N) rather than turns (torques in N m)."""
+        self.table = parameter_table(roles, self.sliders)
+        """Every physical parameter: name, quantity, role, unit (``engine.parameters``)."""
         self.bodies = role_bodies(scene)
         self._check_com_offsets()
         gravity = scene.model.gravity.numpy()[0].astype(np.float64)
@@ -344,10 +358,14 @@ class PhysicalParams:
             shard.scene.solver.notify_model_changed(flags)
 
     def values(self) -> dict[str, torch.Tensor]:
-        """Each env's parameters in SI units, (N,) tensors named by what they are."""
-        return self._named(wp.to_torch(self.mass), wp.to_torch(self.com), wp.to_torch(self.damping),
-                           wp.to_torch(self.friction), wp.to_torch(self.actuator_scale), wp.to_torch(self.gravity),
-                           wp.to_torch(self.delay))
+        """Each env's parameters in SI units, (N,) tensors named as in ``table``."""
+        return self._named(self._arrays())
+
+    def _arrays(self) -> dict[Quantity, torch.Tensor]:
+        """The persistent arrays as tensors, by quantity ((N, roles) per role, (N,) per env)."""
+        return {MASS: wp.to_torch(self.mass), COM: wp.to_torch(self.com), DAMPING: wp.to_torch(self.damping),
+                FRICTION: wp.to_torch(self.friction), ACTUATOR_SCALE: wp.to_torch(self.actuator_scale),
+                GRAVITY: wp.to_torch(self.gravity), ACTION_DELAY: wp.to_torch(self.delay)}
 
     def stage_values(self) -> dict[str, torch.Tensor]:
         """The stage's parameters (what ``values`` gives without randomization), as (1,) tensors."""
@@ -356,60 +374,46 @@ class PhysicalParams:
         def row(values):
             return torch.tensor([values], dtype=torch.float32)
 
-        return self._named(row([b.mass for b in self.bodies]), row([b.com_distance for b in self.bodies]),
-                           row([b.damping for b in self.bodies]), torch.zeros(1, len(self.roles)), torch.ones(1),
-                           torch.tensor([self.gravity_m_s2], dtype=torch.float32), torch.zeros(1, dtype=torch.int32))
+        return self._named({MASS: row([b.mass for b in self.bodies]), COM: row([b.com_distance for b in self.bodies]),
+                            DAMPING: row([b.damping for b in self.bodies]), FRICTION: torch.zeros(1, len(self.roles)),
+                            ACTUATOR_SCALE: torch.ones(1), GRAVITY: torch.tensor([self.gravity_m_s2]),
+                            ACTION_DELAY: torch.zeros(1, dtype=torch.int32)})
 
-    def _named(self, mass, com, damping, friction, actuator_scale, gravity, delay) -> dict[str, torch.Tensor]:
+    def _named(self, arrays: dict[Quantity, torch.Tensor]) -> dict[str, torch.Tensor]:
+        axis_inertia = [float(b.axis @ b.inertia @ b.axis) / b.mass for b in self.bodies]
         out = {}
-        for r, (role, slider, body) in enumerate(zip(self.roles, self.sliders, self.bodies, strict=True)):
-            out[f"{role}_mass_kg"] = mass[:, r].clone()
-            out[f"{role}_com_m"] = com[:, r].clone()
-            axis_inertia = float(body.axis @ body.inertia @ body.axis)
-            out[f"{role}_inertia_kg_m2"] = mass[:, r] * (axis_inertia / body.mass)
-            out[f"{role}_damping_" + ("n_s_m" if slider else "n_m_s_rad")] = damping[:, r].clone()
-            out[f"{role}_friction_" + ("n" if slider else "n_m")] = friction[:, r].clone()
-        out["actuator_scale"] = actuator_scale.clone()
-        out["gravity_m_s2"] = gravity.clone()
-        out["action_delay_steps"] = delay.clone()
+        for p in self.table:
+            if p.quantity is INERTIA:
+                out[p.name] = arrays[MASS][:, p.role_index] * axis_inertia[p.role_index]
+            else:
+                array = arrays[p.quantity]
+                out[p.name] = (array if p.role is None else array[:, p.role_index]).clone()
         return out
 
     def settable(self) -> list[str]:
-        """The names ``set`` takes: those of ``values`` except the derived inertias."""
-        return [name for name in self.values() if not name.endswith("_inertia_kg_m2")]
+        """The names ``set`` takes: those of ``values`` except the derived ones."""
+        return [p.name for p in self.table if p.quantity.settable]
 
     def set(self, values: dict[str, torch.Tensor]):
         """Copy (N,) tensors in SI units into the named parameters (ValueError for an unknown name or a value out of
         range); the caller writes them into the model."""
         import torch
 
-        names = self.settable()
-        targets = {}
-        mass, com = wp.to_torch(self.mass), wp.to_torch(self.com)
-        damping, friction = wp.to_torch(self.damping), wp.to_torch(self.friction)
-        for r, role in enumerate(self.roles):
-            targets[f"{role}_mass_kg"] = (mass[:, r], 0.0)
-            targets[f"{role}_com_m"] = (com[:, r], 0.0)
-            for name in names:
-                if name.startswith(f"{role}_damping_"):
-                    targets[name] = (damping[:, r], 0.0)
-                if name.startswith(f"{role}_friction_"):
-                    targets[name] = (friction[:, r], 0.0)
-        targets["actuator_scale"] = (wp.to_torch(self.actuator_scale), 0.0)
-        targets["gravity_m_s2"] = (wp.to_torch(self.gravity), 0.0)
-        targets["action_delay_steps"] = (wp.to_torch(self.delay), 0)
+        arrays, table = self._arrays(), {p.name: p for p in self.table if p.quantity.settable}
         for name, value in values.items():
-            if name not in targets:
-                raise ValueError(f"unknown physical parameter {name!r}; settable: {', '.join(names)}")
-            target, low = targets[name]
+            if name not in table:
+                raise ValueError(f"unknown physical parameter {name!r}; settable: {', '.join(table)}")
+            p = table[name]
+            low = p.quantity.lowest
             if not torch.isfinite(value.to(torch.float64)).all() or (value < low).any():
-                raise ValueError(f"{name}: every value must be finite and >= {low}")
-            if name.endswith("_mass_kg") and (value <= 0).any():
-                raise ValueError(f"{name}: every mass must be > 0")
-            if name == "action_delay_steps" and (value > self.cfg.action_delay_steps).any():
+                raise ValueError(f"{name}: every value must be finite and >= {low:g}")
+            if p.quantity.positive and (value <= low).any():
+                raise ValueError(f"{name}: every {p.quantity.key} must be > {low:g}")
+            if p.quantity is ACTION_DELAY and (value > self.cfg.action_delay_steps).any():
                 raise ValueError(f"action_delay_steps: at most randomization.action_delay_steps="
                                  f"{self.cfg.action_delay_steps} (the action history the env keeps)")
-            target.copy_(value)
+            array = arrays[p.quantity]
+            (array if p.role is None else array[:, p.role_index]).copy_(value)
 
 
 @wp.func

@@ -1,11 +1,17 @@
 """The rules of an env step that the env's kernels (``kernels.build_kernels``) and the differentiable rollout's
 (``gradients.rollout``) both apply, written once as generic Warp functions (their vectors typed ``Any``: each task's
-``Joints`` and ``Actions``): where each joint role's dof sits, the actions' clip to [-1, 1], and the divergence rule.
+``Joints`` and ``Actions``): where each joint role's dof sits, the actions' clip to [-1, 1], the divergence rule, the
+end codes and the time limit.
 Each builds its result in a fresh vector (a copy of an argument modified in place gets wrong adjoints)."""
 
 from typing import Any
 
 import warp as wp
+
+END_NONE = wp.constant(0)
+END_TIME_LIMIT = wp.constant(1)
+END_NONFINITE = wp.constant(2)
+END_DIVERGED = wp.constant(3)
 
 
 @wp.func
@@ -46,3 +52,12 @@ def all_within(q: Any, qd: Any, limit: float):
     for r in range(len(q)):
         ok = ok and wp.abs(q[r]) <= limit and wp.abs(qd[r]) <= limit
     return ok
+
+
+@wp.func
+def with_time_limit(reason: int, count: int, max_episode_length: int):
+    """A step's end reason with the time limit: ``END_TIME_LIMIT`` where nothing else ends the episode and this is
+    its ``count``-th step toward the limit of ``max_episode_length`` steps."""
+    if reason == END_NONE and count >= max_episode_length:
+        return END_TIME_LIMIT
+    return reason

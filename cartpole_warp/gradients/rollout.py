@@ -16,10 +16,11 @@ reused solver reads the last build's arrays backwards); the rest of a step's scr
 spatial inertias, which a solver derives from the masses when it is made, are derived again on the tape from the
 parameters. With ``sim.capture`` (not 'off') each tape's forward, backward and zeroing are captured as graphs on
 first use and replayed after (``CapturedTape``). A result is backpropagated once, before the next call (else
-RuntimeError: the tapes and arrays are the rollout's, reused call after call). Ends of episodes (termination, the
-time limit) are not applied: a rollout runs its H steps (``Trajectory.terminated`` says where the task's rule would
-end one). The model is the env's stage, built again with gradients (``sim.gradients``: Newton's kernels with
-their adjoints); the env's own kernels stay adjoint-free, and training never builds this.
+RuntimeError: the tapes and arrays are the rollout's, reused call after call). Ends of episodes are reported as the
+env reports them, by the env's rules (the task's, the divergence limit, the time limit counted on from each env's
+``episode_steps``), and not applied: a rollout runs its H steps (``Trajectory.end_reason``). The model is the env's
+stage, built again with gradients (``sim.gradients``: Newton's kernels with their adjoints); the env's own kernels
+stay adjoint-free, and training never builds this.
 """
 
 import functools
@@ -32,11 +33,21 @@ import torch
 import warp as wp
 
 from ..engine.env import BatchedEnv
-from ..engine.kernels import END_NONE, TaskFunctions, constants_of, kernel_constants
+from ..engine.kernels import TaskFunctions, constants_of, kernel_constants
+from ..engine.parameters import ACTUATOR_SCALE, COM, DAMPING, FRICTION, GRAVITY, MASS, Quantity, of_quantity
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_friction, write_env
 from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
-from ..engine.step_rules import all_within, clip_actions, role_state, set_role_state
+from ..engine.step_rules import (
+    END_DIVERGED,
+    END_NONE,
+    END_TIME_LIMIT,
+    all_within,
+    clip_actions,
+    role_state,
+    set_role_state,
+    with_time_limit,
+)
 from ..engine.streams import StreamOrder
 
 
@@ -45,32 +56,54 @@ class Trajectory:
     """A rollout's tensors: joint positions and velocities (H + 1, N, joints) in the task's role order (m or rad, m/s
     or rad/s), observations (H + 1, N, num_obs), the actions applied (H, N, num_actions, before clipping), the
     rewards (H, N) of each step (0 where the state is beyond ``sim.divergence_limit`` or non-finite, as the env's)
-    and whether the state after it ends the episode by the task's rule or that limit (``terminated``, (H, N) bool, no
-    gradient; the rollout runs on regardless)."""
+    and the end reason of the state after it (``end_reason``, (H, N) int32, the env's codes: ``END_NONE``, the time
+    limit, ``END_DIVERGED`` or the task's; no gradient; the rollout runs on regardless)."""
 
     q: torch.Tensor
     qd: torch.Tensor
     obs: torch.Tensor
     actions: torch.Tensor
     rewards: torch.Tensor
-    terminated: torch.Tensor
+    end_reason: torch.Tensor
+
+    @property
+    def terminated(self) -> torch.Tensor:
+        """(H, N) bool: the step ends its episode by the task's rule or the divergence limit (``terminated_buf``)."""
+        return (self.end_reason != END_NONE) & (self.end_reason != END_TIME_LIMIT)
+
+    @property
+    def truncated(self) -> torch.Tensor:
+        """(H, N) bool: the step reaches the time limit (``truncated_buf``)."""
+        return self.end_reason == END_TIME_LIMIT
+
+    @property
+    def ended(self) -> torch.Tensor:
+        """(H, N) bool: the step ends its episode, either way."""
+        return self.end_reason != END_NONE
 
 
 @wp.struct
 class StepConstants:
-    """What the step's kernels read besides the state: where each joint role's dof sits in an env's (``role_dofs``, of
-    ``dofs_per_env``), and the joint magnitude beyond which a state has diverged (``sim.divergence_limit``)."""
+    """What a step's kernels read besides the state: where each joint role's dof sits in an env's (``role_dofs``, of
+    ``dofs_per_env``), the joint magnitude beyond which a state has diverged (``sim.divergence_limit``), and for the
+    time limit (``max_episode_length`` steps) the steps each env's episode had counted toward it before the rollout
+    (``episode_steps``) and this step's index in the horizon (``step``)."""
 
     role_dofs: wp.array(dtype=int)
     dofs_per_env: int
     divergence_limit: float
+    episode_steps: wp.array(dtype=int)
+    step: int
+    max_episode_length: int
 
 
-def step_constants(scene, divergence_limit: float, device: str) -> StepConstants:
-    """The ``StepConstants`` of a rollout's ``engine.scene.Scene`` on ``device``."""
+def step_constants(rollout: "DifferentiableRollout", step: int) -> StepConstants:
+    """The ``StepConstants`` of step ``step`` of ``rollout``."""
     constants = StepConstants()
-    constants.role_dofs = wp.array(scene.role_dofs, dtype=int, device=device)
-    constants.dofs_per_env, constants.divergence_limit = scene.dofs_per_env, float(divergence_limit)
+    constants.role_dofs, constants.dofs_per_env = rollout.role_dofs, rollout.dofs_per_env
+    constants.divergence_limit = float(rollout.sim.divergence_limit)
+    constants.episode_steps, constants.step = rollout.episode_steps, step
+    constants.max_episode_length = rollout.max_episode_length
     return constants
 
 
@@ -122,7 +155,7 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
     def read_step(p: Constants, constants: StepConstants, joint_q: wp.array(dtype=float),
                   joint_qd: wp.array(dtype=float), actions: wp.array2d(dtype=float),
                   q_out: wp.array2d(dtype=float), qd_out: wp.array2d(dtype=float), obs: wp.array2d(dtype=float),
-                  rewards: wp.array(dtype=float), terminated: wp.array(dtype=wp.int32)):
+                  rewards: wp.array(dtype=float), end_reason: wp.array(dtype=wp.int32)):
         env = wp.tid()
         q, qd = role_state(joint_q, joint_qd, constants.role_dofs, env * constants.dofs_per_env, Joints())
         for r in range(num_joints):
@@ -131,7 +164,10 @@ def differentiable_kernels(functions: TaskFunctions, config_class: type, num_joi
         reward, end = fns.reward_and_end(q, qd, clip_actions(row_of(actions, env, Actions())), p)
         within = all_within(q, qd, constants.divergence_limit)  # as the env judges a state
         rewards[env] = wp.where(within, reward, 0.0)
-        terminated[env] = wp.where(end != END_NONE or not within, 1, 0)
+        if end == END_NONE and not within:
+            end = END_DIVERGED
+        count = constants.episode_steps[env] + constants.step + 1
+        end_reason[env] = with_time_limit(end, count, constants.max_episode_length)
         o = fns.observe(q, qd, p)
         for i in range(num_obs):
             obs[env, i] = o[i]
@@ -202,14 +238,15 @@ class CapturedTape:
 class EnvStep:
     """The arrays, states and solvers of one env step of the horizon (its ``decimation`` physics steps)."""
 
-    def __init__(self, rollout: "DifferentiableRollout"):
+    def __init__(self, rollout: "DifferentiableRollout", index: int):
         r, n, dev = rollout, rollout.num_envs, rollout.device
         j, a = r.num_joints, r.num_actions
         self.q, self.qd, self.actions = zeros((n, j), dev), zeros((n, j), dev), zeros((n, a), dev)
         self.forces = zeros((n, j), dev)
         self.q_out, self.qd_out = zeros((n, j), dev), zeros((n, j), dev)
         self.obs, self.rewards = zeros((n, r.num_obs), dev), zeros((n,), dev)
-        self.terminated = wp.zeros(n, dtype=wp.int32, device=dev)
+        self.end_reason = wp.zeros(n, dtype=wp.int32, device=dev)
+        self.constants = step_constants(rollout, index)
         model = r.model
         self.states = [model.state(requires_grad=True) for _ in range(r.decimation + 1)]
         self.controls = [model.control() for _ in range(r.decimation)]
@@ -223,26 +260,26 @@ class EnvStep:
                                  "(Newton 1.8's solver, whose step counter picks when the mass matrix is built)")
             solver.body_I_m, solver.body_X_com = r.inertia_solver.body_I_m, r.inertia_solver.body_X_com
         self.tape = CapturedTape(dev, functools.partial(self.launch, r), r.capture)
-        """The step: ``q``, ``qd``, ``actions`` in; ``q_out``, ``qd_out``, ``obs``, ``rewards``, ``terminated``
+        """The step: ``q``, ``qd``, ``actions`` in; ``q_out``, ``qd_out``, ``obs``, ``rewards``, ``end_reason``
         out."""
 
     def launch(self, rollout: "DifferentiableRollout"):
         r, k, dev, n = rollout, rollout.kernels, rollout.device, rollout.num_envs
         first = self.states[0]
-        wp.launch(k.set_joints, n, inputs=[self.q, self.qd, r.constants],
+        wp.launch(k.set_joints, n, inputs=[self.q, self.qd, self.constants],
                   outputs=[first.joint_q, first.joint_qd], device=dev)
         wp.launch(k.actuate, n, inputs=[r.task_constants, self.actions, r.actuator_scale], outputs=[self.forces],
                   device=dev)
         for i in range(r.decimation):
             state, control = self.states[i], self.controls[i]
-            wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, r.constants, state.joint_qd],
+            wp.launch(k.add_friction, n, inputs=[self.forces, r.friction, self.constants, state.joint_qd],
                       outputs=[control.joint_f], device=dev)
             solver = self.solvers[i // r.mass_matrix_interval]
             solver._step = i % r.mass_matrix_interval  # 0: build the mass matrix, else read the one built
             solver.step(state, self.states[i + 1], control, None, r.physics_dt)
         last = self.states[-1]
-        wp.launch(k.read_step, n, inputs=[r.task_constants, r.constants, last.joint_q, last.joint_qd, self.actions],
-                  outputs=[self.q_out, self.qd_out, self.obs, self.rewards, self.terminated], device=dev)
+        wp.launch(k.read_step, n, inputs=[r.task_constants, self.constants, last.joint_q, last.joint_qd, self.actions],
+                  outputs=[self.q_out, self.qd_out, self.obs, self.rewards, self.end_reason], device=dev)
 
 
 def as_warp(array: wp.array, tensor: torch.Tensor):
@@ -373,10 +410,29 @@ class DifferentiableRollout:
         scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
                             requires_grad=True)
         self.model, self.dofs_per_env = scene.model, scene.dofs_per_env
-        self.constants = step_constants(scene, cfg.sim.divergence_limit, self.device)
+        self.role_dofs = wp.array(scene.role_dofs, dtype=int, device=self.device)
+        self.max_episode_length = int(cfg.max_episode_length)
+        self.episode_steps = wp.zeros(self.num_envs, dtype=int, device=self.device)
+        """Each env's steps toward the time limit before the call (``__call__``'s ``episode_steps``)."""
         self.inertia_solver = scene.solver
         self.physical = env.physics
         self.layout = env.physics.layout  # the same stage and env count: the same places
+        self._make_physics()
+        n, roles, dev = self.num_envs, self.num_joints, self.device
+        self.q0, self.qd0, self.obs0 = zeros((n, roles), dev), zeros((n, roles), dev), zeros((n, self.num_obs), dev)
+        self.capture = cfg.sim.capture != "off"
+        self.steps = [EnvStep(self, t) for t in range(horizon)]
+        self.physics_tape = CapturedTape(self.device, self._write_physics, self.capture)
+        self.observe_tape = CapturedTape(self.device, self._observe, self.capture)
+        self.parameter_table = env.physics.table
+        self.parameter_names = [p.name for p in self.parameter_table if p.quantity.differentiable]
+        """The physical parameters a rollout takes (``stage_params``' names; ``engine.parameters``' differentiable
+        ones): per joint role its body's mass and centre of mass, the joint's damping and friction; the actuator
+        scale and gravity."""
+
+    def _make_physics(self):
+        """The physical parameters' arrays (with gradients), their struct for the kernels, and the model's fields
+        that they are written into."""
         n, roles, dev = self.num_envs, self.num_joints, self.device
         self.mass, self.com, self.damping, self.friction = (zeros((n, roles), dev) for _ in range(4))
         self.actuator_scale, self.gravity = zeros((n,), dev), zeros((n,), dev)
@@ -391,14 +447,6 @@ class DifferentiableRollout:
         fields.body_inertia, fields.body_inv_inertia = m.body_inertia, m.body_inv_inertia
         fields.joint_damping, fields.gravity = m.joint_damping, m.gravity
         self.model_fields = fields
-        self.q0, self.qd0, self.obs0 = zeros((n, roles), dev), zeros((n, roles), dev), zeros((n, self.num_obs), dev)
-        self.capture = cfg.sim.capture != "off"
-        self.steps = [EnvStep(self) for _ in range(horizon)]
-        self.physics_tape = CapturedTape(self.device, self._write_physics, self.capture)
-        self.observe_tape = CapturedTape(self.device, self._observe, self.capture)
-        self.parameter_names = [name for name in env.physics.settable() if name != "action_delay_steps"]
-        """The physical parameters a rollout takes (``stage_params``' names): per joint role its body's mass and
-        centre of mass, the joint's damping and friction; the actuator scale and gravity."""
 
     def _write_physics(self):
         """The physical parameters into the model, and the spatial inertias derived from them."""
@@ -422,33 +470,36 @@ class DifferentiableRollout:
             raise ValueError(f"unknown physical parameters {unknown}; a rollout takes {self.parameter_names}")
         full = self.stage_params() | params
 
-        def per_role(suffix: str) -> torch.Tensor:
-            return torch.stack([full[next(n for n in self.parameter_names if n.startswith(f"{role}_{suffix}"))]
-                                for role in self.roles], dim=1)
+        def per_role(quantity: Quantity) -> torch.Tensor:
+            return torch.stack([full[p.name] for p in of_quantity(self.parameter_table, quantity)], dim=1)
 
-        return [per_role("mass"), per_role("com"), per_role("damping"), per_role("friction"),
-                full["actuator_scale"], full["gravity_m_s2"]]
+        return [per_role(MASS), per_role(COM), per_role(DAMPING), per_role(FRICTION), full[ACTUATOR_SCALE.key],
+                full[GRAVITY.key]]
 
     def __call__(self, q0: torch.Tensor, qd0: torch.Tensor, actions: torch.Tensor | None = None,
                  policy: Callable[[torch.Tensor], torch.Tensor] | None = None,
-                 params: dict[str, torch.Tensor] | None = None) -> Trajectory:
+                 params: dict[str, torch.Tensor] | None = None, episode_steps: torch.Tensor | None = None
+                 ) -> Trajectory:
         """Run the horizon from joint states ``q0``, ``qd0`` (N, joints) under ``actions`` (H, N, num_actions) or
-        ``policy(obs) -> actions`` with ``params`` (by name, (N,) each; the stage's where not given). Backward through
-        the result before the next call: each step's tape and arrays are reused."""
+        ``policy(obs) -> actions`` with ``params`` (by name, (N,) each; the stage's where not given); each env's episode
+        had counted ``episode_steps`` (N,) toward the time limit before (the env's ``episode_length_buf``; default 0).
+        Backward through the result before the next call: each step's tape and arrays are reused."""
         if (actions is None) == (policy is None):
             raise ValueError("give actions (H, N, num_actions) or a policy, not both")
         self.calls += 1
         with self.order:
             for tape in (self.physics_tape, self.observe_tape, *(step.tape for step in self.steps)):
                 tape.zero()
+            counted = wp.to_torch(self.episode_steps)
+            counted.copy_(episode_steps) if episode_steps is not None else counted.zero_()
         token = PhysicsFunction.apply(self, *self._physics_tensors(params or {}))
         q, qd = q0, qd0
         obs = ObserveFunction.apply(self, q, qd)
-        qs, qds, observations, applied, rewards, terminated = [q], [qd], [obs], [], [], []
+        qs, qds, observations, applied, rewards, ends = [q], [qd], [obs], [], [], []
         for t, step in enumerate(self.steps):
             action = actions[t] if actions is not None else policy(obs)
             q, qd, obs, reward = StepFunction.apply(self, step, token, q, qd, action)
             qs.append(q), qds.append(qd), observations.append(obs), applied.append(action), rewards.append(reward)
-            terminated.append(wp.to_torch(step.terminated).bool())
+            ends.append(wp.to_torch(step.end_reason).clone())
         return Trajectory(torch.stack(qs), torch.stack(qds), torch.stack(observations), torch.stack(applied),
-                          torch.stack(rewards), torch.stack(terminated))
+                          torch.stack(rewards), torch.stack(ends))

@@ -2,7 +2,7 @@
 "Accelerated Policy Learning with Parallel Differentiable Simulation", ICLR 2022), for any state task on
 SolverFeatherstone.
 
-    python train.py --task cartpole-balance --algorithm apg --num-envs 256
+    python train.py --task cartpole-balance --learner apg --num-envs 256
 
 Each iteration runs every env ``agent.num_steps_per_env`` env steps on ``gradients.DifferentiableRollout`` under the
 actor's actions and ascends, by the gradient through the simulator's adjoints, the window's discounted rewards plus
@@ -52,7 +52,7 @@ ADAM_BETAS = (0.7, 0.95)
 
 
 def check_apg(cfg: TrainConfig):
-    """ConfigError, before anything is built, where ``--algorithm apg`` cannot train ``cfg`` as asked."""
+    """ConfigError, before anything is built, where ``--learner apg`` cannot train ``cfg`` as asked."""
     problems = {
         "a task that observes camera frames (the renderer has no adjoint)": cfg.env.camera.enabled,
         "env.sim.solver other than featherstone (mujoco-warp's adjoints are not here)":
@@ -65,7 +65,7 @@ def check_apg(cfg: TrainConfig):
     }
     named = [what for what, present in problems.items() if present]
     if named:
-        raise ConfigError(f"--algorithm apg cannot train {cfg.task} with {'; '.join(named)}")
+        raise ConfigError(f"--learner apg cannot train {cfg.task} with {'; '.join(named)}")
 
 
 class ApgLearner:
@@ -78,7 +78,7 @@ class ApgLearner:
         again); ConfigError where the learner cannot train ``cfg`` (``check_apg``) or under torchrun."""
         check_apg(cfg)
         if ranks.distributed:
-            raise ConfigError("--algorithm apg trains in one process (not under torchrun)")
+            raise ConfigError("--learner apg trains in one process (not under torchrun)")
         return dataclasses.replace(env_cfg, sim=dataclasses.replace(env_cfg.sim, gradients=True))
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
@@ -104,8 +104,6 @@ class ApgLearner:
         """Each env's time-out counter (the episode is truncated when it reaches the time limit; learn() may start it
         at random: ``init_at_random_ep_len``)."""
         self.episode_return = torch.zeros(n, device=self.device)
-        self.max_episode_length = int(env.max_episode_length)
-        self.has_time_limit = cfg.env.task.has_time_limit
         self._end_iteration = 1
 
     def begin(self, first_iteration: int, end_iteration: int):
@@ -159,9 +157,8 @@ class ApgLearner:
             self._starts()
         self._set_learning_rates(it)
         self.clock.mark(0)
-        window = self.rollout(self.q, self.qd, policy=self._act, params=self.params)
-        terminated = window.terminated
-        ended = self._ends(terminated)
+        window = self.rollout(self.q, self.qd, policy=self._act, params=self.params, episode_steps=self.time_out_count)
+        terminated, ended = window.terminated, window.ended
         alive = (torch.cumsum(ended, 0) - ended.long()) == 0  # the steps that count: up to the episode's end
         self.clock.mark(1)
         actor_loss, next_values = self._actor_step(window, alive, ended, terminated)
@@ -172,15 +169,8 @@ class ApgLearner:
         self.critic.update_normalization(seen)
         critic_loss = self._critic_step(window, sound, ended, terminated, next_values)
         self.clock.mark(2)
-        self._carry_on(window, alive, ended, terminated)
+        self._carry_on(window, alive)
         return obs, {"actor": actor_loss, "value_function": critic_loss}
-
-    def _ends(self, terminated: torch.Tensor) -> torch.Tensor:
-        """(H, N) bool: where an episode ends at each step (``terminated``, or the time limit)."""
-        if not self.has_time_limit:
-            return terminated
-        steps = torch.arange(1, self.horizon + 1, device=self.device)[:, None]
-        return terminated | (self.time_out_count[None] + steps >= self.max_episode_length)
 
     def _actor_step(self, window: Trajectory, alive, ended, terminated) -> tuple[float, torch.Tensor]:
         s = self.settings
@@ -221,13 +211,13 @@ class ApgLearner:
                 target.copy_(value)  # the input normaliser's statistics (obs_normalization)
         return (total / steps).item()
 
-    def _carry_on(self, window: Trajectory, alive, ended, terminated):
+    def _carry_on(self, window: Trajectory, alive):
         """Episode statistics of the window's ended episodes; states on to the next window, new starts where ended."""
-        done = ended.any(0)
+        done = (window.ended & alive).any(0)
         self.episode_return += torch.where(alive, window.rewards.detach(), 0.0).sum(0)
         self.episode_length += alive.sum(0)
         self.time_out_count += alive.sum(0)
-        timed_out = done & ~(terminated & alive).any(0)
+        timed_out = (window.truncated & alive).any(0)
         self.episodes.add(done, self.episode_return, self.episode_length, timed_out)
         self.q, self.qd = window.q[-1].detach(), window.qd[-1].detach()
         if done.any():

@@ -112,7 +112,7 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
 
 
 def apg_settings(cfg: TrainConfig) -> dict[str, object]:
-    """The settings the task chooses for ``--algorithm apg`` (``Task.apg_defaults``), as ``gpu_settings``; {} where
+    """The settings the task chooses for ``--learner apg`` (``Task.apg_defaults``), as ``gpu_settings``; {} where
     ``cfg`` trains with PPO."""
     return chosen_settings(cfg, cfg.task_spec.apg_defaults) if cfg.agent.learner == "apg" else {}
 

@@ -1,6 +1,6 @@
 """The seam between the training loop and what learns: a ``Learner`` runs one iteration (act, step, learn) on the
 env, holds the state a checkpoint keeps, and names the policy an evaluation judges; ``learner_class`` finds one by
-its name (``agent.learner``: ``train.py --algorithm NAME``).
+its name (``agent.learner``: ``train.py --learner NAME``).
 
     learner = learner_class(cfg.agent.learner)(env, cfg, rsl_rl_cfg, EpisodeStats(env.device, max_episode_length))
     obs, losses = learner.iteration(obs, it)

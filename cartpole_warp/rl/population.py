@@ -100,7 +100,7 @@ def check_population(cfg: TrainConfig, members: list[Member]):
     """ConfigError in one line where ``cfg`` cannot train as a population (``PopulationPPO``'s networks are rsl-rl's
     MLPs on the task's state, updated in float32 by rsl-rl's PPO)."""
     problems = {
-        "--algorithm apg (populations train with PPO)": cfg.agent.learner != "ppo",
+        "--learner apg (populations train with PPO)": cfg.agent.learner != "ppo",
         "a task that observes camera frames (the population's networks are MLPs)": cfg.env.camera.enabled,
         "agent.algorithm.use_mixed_precision": cfg.agent.algorithm.use_mixed_precision,
         "agent.torch_compile_mode": cfg.agent.torch_compile_mode is not None,

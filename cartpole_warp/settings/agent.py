@@ -187,8 +187,9 @@ class RunnerConfig:
     torch_compile_mode: Literal["default", "max-autotune-no-cudagraphs"] | None = None
     """rsl-rl's torch.compile of the actor and critic (None: not compiled)."""
     learner: Learner = "ppo"
-    """'ppo': rsl-rl's PPO (``algorithm``); 'apg': analytic policy gradients through the simulator (``apg``; state
-    tasks on SolverFeatherstone, one process)."""
+    """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO, whose settings are ``algorithm`` (rsl-rl's name for
+    its algorithm's section); 'apg', analytic policy gradients through the simulator in SHAC's short-horizon form,
+    whose settings are ``apg`` (state tasks on SolverFeatherstone, one process)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     apg: ApgConfig = field(default_factory=ApgConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)

@@ -31,7 +31,7 @@ APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max
                                                     "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
                                                     "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
                 "eval": {"in_step": False}}
-"""A task's settings for ``--algorithm apg`` unless it names its own (``Task.apg_defaults``): 64 envs, windows of 32
+"""A task's settings for ``--learner apg`` unless it names its own (``Task.apg_defaults``): 64 envs, windows of 32
 env steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on every device (a
 task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself);
 chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
@@ -64,7 +64,7 @@ class Task:
     ``gpu_defaults`` where it is a GPU (there a network's width costs little; on a CPU every product and activation
     costs its samples). train.py names them in its first lines; a variant inherits them as ``gpu_defaults``."""
     apg_defaults: dict = field(default_factory=lambda: APG_DEFAULTS)
-    """Overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run trains with ``--algorithm apg``
+    """Overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run trains with ``--learner apg``
     (analytic policy gradients: few envs, longer windows); train.py names them in its first lines."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""

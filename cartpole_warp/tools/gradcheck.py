@@ -27,6 +27,7 @@ import torch
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
+from ..engine.parameters import ACTUATOR_SCALE, DAMPING, FRICTION, GRAVITY
 from ..engine.scene import StageError
 from ..gradients.rollout import DifferentiableRollout
 from ..settings.config import ConfigError, require
@@ -42,15 +43,16 @@ def off_stage_physics(rollout: DifferentiableRollout, friction: bool = True) -> 
     damping and (where ``friction``, else the stage's) friction 0.02 and 0.05 (N s/m, N m s/rad; N, N m) times 1 +
     the role's index, actuator scale 0.9 and 1.1, gravity 9.6 and 10.0."""
     out = {}
+    table = {p.name: p for p in rollout.parameter_table}
     for name, value in rollout.stage_params().items():
-        role = next((r for r, role in enumerate(rollout.roles) if name.startswith(f"{role}_")), 0)
-        if "_friction_" in name and not friction:
+        quantity, role = table[name].quantity, table[name].role_index
+        if quantity is FRICTION and not friction:
             out[name] = value
-        elif "_damping_" in name or "_friction_" in name:  # role k's 1 + k times the first's: no two alike
+        elif quantity in (DAMPING, FRICTION):  # role k's 1 + k times the first's: no two alike
             out[name] = torch.tensor([0.02, 0.05], device=value.device) * (1 + role)
-        elif name == "gravity_m_s2":
+        elif quantity is GRAVITY:
             out[name] = torch.tensor([9.6, 10.0], device=value.device)
-        elif name == "actuator_scale":
+        elif quantity is ACTUATOR_SCALE:
             out[name] = torch.tensor([0.9, 1.1], device=value.device)
         else:
             out[name] = value * torch.tensor([0.8, 1.2], device=value.device)
@@ -93,6 +95,7 @@ class JacobianCheck:
     def __init__(self, rollout: DifferentiableRollout, inputs: dict[str, torch.Tensor]):
         self.rollout, self.inputs = rollout, inputs
         self.physics = [name for name in inputs if name in rollout.parameter_names]
+        self.positive = {p.name for p in rollout.parameter_table if p.quantity.positive}
 
     def outputs(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """Every step's rewards, then the last joint positions and velocities, flat, in float64."""
@@ -124,8 +127,8 @@ class JacobianCheck:
     def column(self, name: str, index: int, tape: torch.Tensor) -> Column:
         value = float(self.inputs[name].view(-1)[index])
         top = LADDER_TOP * max(abs(value), 1.0)
-        if name.endswith("_mass_kg"):
-            top = min(top, 0.5 * abs(value))  # a mass stays positive
+        if name in self.positive:
+            top = min(top, 0.5 * abs(value))
         steps = [top * 0.5 ** k for k in range(LADDER_STEPS)]
         centrals = [self.central(name, index, step) for step in steps]
         columns = [(4 * b - a) / 3 for a, b in zip(centrals, centrals[1:])]  # Richardson: h^2 errors cancel

@@ -40,13 +40,14 @@ import yaml
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
+from ..engine.parameters import ACTUATOR_SCALE, COM, GRAVITY, Parameter, of_quantity
 from ..engine.scene import StageError
 from ..evaluation.trajectories import Recording, column_names, read_trajectory
 from ..gradients.rollout import DifferentiableRollout, Trajectory
 from ..settings.config import ConfigError, require
 from ..settings.files import write_text
 
-NOT_FITTED_BY_DEFAULT = ("actuator_scale", "gravity_m_s2")
+NOT_FITTED_BY_DEFAULT = (ACTUATOR_SCALE.key, GRAVITY.key)
 """Left at the stage's values unless ``--fit`` names them: scaling every mass, damping, friction and the actuator
 together moves nothing (only their ratios are in the motion), and gravity is known."""
 EQUALLY_GOOD = 1.1
@@ -161,6 +162,8 @@ class Problem:
     """Every settable parameter's value on the stage (SI units)."""
     roles: tuple[str, ...]
     sliders: list[bool]
+    table: tuple[Parameter, ...]
+    """The task's physical parameters (``engine.parameters``)."""
     dt: float
     """The task's control period (s)."""
 
@@ -182,11 +185,12 @@ def read_problem(args: SysidArgs) -> Problem:
     starts = windows(recording, args.window_steps, clear)
     require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode and clear of "
                     "the joints' limits")
-    settable = [n for n in probe.physics.settable() if n != "action_delay_steps"]
+    table, bodies = probe.physics.table, probe.physics.bodies
+    settable = [p.name for p in table if p.quantity.differentiable]
     stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in settable}
-    on_joint = [f"{role}_com_m" for role, body in zip(roles, probe.physics.bodies) if body.com_distance == 0.0]
+    on_joint = [p.name for p in of_quantity(table, COM) if bodies[p.role_index].com_distance == 0.0]
     probe.close()
-    return Problem(recording, starts, fitted_names(args.fit, settable, on_joint), stage, roles, sliders, dt)
+    return Problem(recording, starts, fitted_names(args.fit, settable, on_joint), stage, roles, sliders, table, dt)
 
 
 def fitted_names(chosen: list[str], settable: list[str], on_joint: list[str]) -> list[str]:
@@ -372,7 +376,7 @@ def fit(args: SysidArgs) -> dict:
     labels = column_names(problem.roles, problem.sliders)[0]
     plot(output / "sysid_fit.png", problem.recording, problem.starts, simulated, problem.dt, labels)
     write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
-    preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.roles)
+    preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.table)
     print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
           f"(python train.py --task {args.task} --config {preset})")
     return result
@@ -418,22 +422,18 @@ def plot(path: Path, recording: Recording, starts: list[int], simulated: np.ndar
     plt.close(figure)
 
 
-def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, roles: tuple[str, ...]) -> Path:
+def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, table: tuple[Parameter, ...]) -> Path:
     """A preset whose randomization draws the fitted physics (times 1 -/+ ``args.randomize``) at every reset."""
     low, high = 1.0 - args.randomize, 1.0 + args.randomize
     sections: dict = {}
-    for name, value in fitted.items():
-        role = next((r for r in roles if name.startswith(f"{r}_")), None)
-        if name.endswith("_mass_kg"):
-            sections.setdefault("mass_scale", {})[role] = [value / stage[name] * low, value / stage[name] * high]
-        elif name.endswith("_com_m"):
-            sections.setdefault("com_offset_m", {})[role] = [value * low - stage[name], value * high - stage[name]]
-        elif "_damping_" in name:
-            sections.setdefault("joint_damping", {})[role] = [value * low, value * high]
-        elif "_friction_" in name:
-            sections.setdefault("joint_friction", {})[role] = [value * low, value * high]
+    for p in (p for p in table if p.name in fitted):
+        value, base = fitted[p.name], stage[p.name]
+        bounds = {"scale": [value / base * low, value / base * high],
+                  "offset": [value * low - base, value * high - base]}.get(p.quantity.draw, [value * low, value * high])
+        if p.role is None:
+            sections[p.quantity.section] = bounds
         else:
-            sections[name] = [value * low, value * high]
+            sections.setdefault(p.quantity.section, {})[p.role] = bounds
     preset = {"task": args.task, "env": {"randomization": {"at": "reset", **sections}}}
     header = (f"# The physics tools.sysid fitted to {args.trajectory} (task {args.task}); randomization ranges "
               f"{args.randomize:g} around the fit.\n# python train.py --task {args.task} --config {path}\n")
