@@ -28,7 +28,32 @@ def pytest_xdist_auto_num_workers(config) -> int:
     """``-n auto`` (the README's test command, through pyproject's addopts): one test process per core, as many as
     the available memory holds at ``GB_PER_WORKER`` each."""
     available_gb = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 1e9
-    return max(1, min(os.cpu_count() or 1, int(available_gb // GB_PER_WORKER)))
+    return max(1, min(len(os.sched_getaffinity(0)), int(available_gb // GB_PER_WORKER)))
+
+
+def pytest_configure(config):
+    """A test process of pytest-xdist's ``-n N`` keeps its share of the cores (every N-th): the env's CPU shards,
+    torch's threads and the processes a test starts then count the cores of their own process and do not fight the
+    other test processes for theirs (oversubscribed cores slow both)."""
+    worker, count = os.environ.get("PYTEST_XDIST_WORKER"), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0"))
+    cores = sorted(os.sched_getaffinity(0))
+    if worker and 1 < count <= len(cores):
+        share = cores[int(worker.removeprefix("gw")) % count::count]
+        os.sched_setaffinity(0, share)
+        torch.set_num_threads(len(share))
+
+
+SLOWEST_FILES_FIRST = ("test_train_cli.py", "test_startup.py", "test_env.py", "test_browser.py", "test_rendering.py",
+                       "test_physics.py", "test_apg.py", "test_packaging.py", "test_population.py", "test_sweep.py",
+                       "test_in_step.py", "test_viewer.py", "test_sb3_env.py", "test_gym_env.py", "test_promises.py",
+                       "test_examples.py", "test_distributed.py", "test_sysid.py", "test_reproducible.py")
+"""The test files that take longest, longest first (measured: --durations=0): pyproject's ``--dist loadfile
+--no-loadscope-reorder`` hands whole files to the test processes in this order, so that they end together."""
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(SLOWEST_FILES_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's tests keep their order
 
 
 @pytest.fixture(scope="session")
@@ -77,6 +102,11 @@ def run_main():
     return call_main
 
 
+def sees_images(task: str) -> bool:
+    """Whether registered task ``task`` observes camera frames."""
+    return "camera" in cartpole_warp.tasks.get(task).defaults.get("env", {})
+
+
 @pytest.fixture
 def make():
     """``make(num_envs=64, seed=0, preset="default", task_name=None, **overrides)``: an env of task ``task_name`` (a
@@ -87,7 +117,7 @@ def make():
 
     def factory(num_envs=64, seed=0, preset="default", task_name=None, **overrides):
         name = task_name or cartpole_warp.tasks.DEFAULT_TASK
-        if "camera" in cartpole_warp.tasks.get(name).defaults.get("env", {}):
+        if sees_images(name):
             overrides["camera"] = SMALL_FRAMES | overrides.get("camera", {})
         env = cartpole_warp.tasks.make(name, num_envs=num_envs, device=DEVICE, seed=seed, preset=preset, **overrides)
         envs.append(env)

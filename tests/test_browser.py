@@ -186,7 +186,7 @@ def test_headless_play_records_for_the_static_player(repo, tmp_path, browser, ru
 
     for task in tasks.names():
         out = tmp_path / task
-        result = run_main("play", "--agent", "zero", "--headless", "--task", task, "--num-envs", 4, "--steps", 40,
+        result = run_main("play", "--agent", "zero", "--headless", "--task", task, "--num-envs", 4, "--steps", 10,
                           "--output", out, "--record-viser")
         assert result.returncode == 0, result.stdout + result.stderr
         assert (out / "cartpole.viser").stat().st_size > 1000

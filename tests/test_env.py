@@ -187,7 +187,7 @@ def test_episode_statistics_sum_the_rewards(task, make, random_actions):
 @pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
 @pytest.mark.parametrize("task", TASKS)
 def test_captured_step_equals_uncaptured(task, solver, make, random_actions):
-    actions = random_actions(64, 60)
+    actions = random_actions(64, 35)
     captured = rollout(make(64, task_name=task, sim={"solver": solver, "capture": "on"}, task=SHORT_EPISODES), actions)
     plain = rollout(make(64, task_name=task, sim={"solver": solver, "capture": "off"}, task=SHORT_EPISODES), actions)
     assert episodes_ended(captured) >= 64, "the rollout must include resets"
@@ -201,7 +201,7 @@ def test_sharded_threads_give_the_single_scene_trajectory(task, make, random_act
     assert len(sharded.shards) == (2 if device == "cpu" else 1)
     single = make(1024, task_name=task, sim={"cpu_threads": 1}, task=SHORT_EPISODES)
     assert len(single.shards) == 1
-    actions = random_actions(1024, 40)
+    actions = random_actions(1024, 30)
     reference = rollout(single, actions)
     assert episodes_ended(reference) >= 1024, "the rollout must include resets"
     assert torch.equal(rollout(sharded, actions), reference)
@@ -257,7 +257,7 @@ def test_sizes(task, num_envs, make, random_actions, device):
     assert env.obs_shape == shape
     obs, info = env.reset()
     assert obs.shape == (num_envs, *shape) and obs.dtype == dtype and str(obs.device) == env.device
-    for actions in random_actions(num_envs, 30):
+    for actions in random_actions(num_envs, 10):
         obs, reward, terminated, truncated, info = env.step(actions)
     assert obs.shape == info["final_obs"].shape == (num_envs, *shape)
     assert env.get_state_observations().shape == (num_envs, env.num_obs)

@@ -4,7 +4,7 @@ double pole; the forward pass against the env's own step; the policy's parameter
 
 import pytest
 import torch
-from conftest import DEVICE
+from conftest import DEVICE, sees_images
 
 import cartpole_warp
 from cartpole_warp.gradients.rollout import DifferentiableRollout
@@ -43,8 +43,7 @@ def test_gradients_equal_finite_differences(task):
         "every body's mass moves the outputs (a solver's inertias derived off the tape would give 0)"
 
 
-STATE_TASKS = [name for name in cartpole_warp.tasks.names()
-               if "camera" not in cartpole_warp.tasks.get(name).defaults.get("env", {})]
+STATE_TASKS = [name for name in cartpole_warp.tasks.names() if not sees_images(name)]
 """Every registered task that observes its state (the renderer has no adjoint)."""
 
 

@@ -6,7 +6,7 @@ import json
 
 import pytest
 import torch
-from conftest import DEVICE, call_main
+from conftest import DEVICE, SMALL_FRAMES, call_main, sees_images
 from test_solved import BALANCING_GAINS, FAILING, make_training, set_policy_mean, training_episodes
 
 from cartpole_warp import tasks
@@ -20,12 +20,15 @@ ROBUST = {"randomization": {"at": "reset", "mass_scale": {"cart": [0.7, 2.5]}, "
                             "obs_noise_std": 0.01, "action_delay_steps": 2}}
 """Physics drawn at each episode start, observation noise and a random action delay: what a restart must draw (and
 forget) as a fresh env does."""
+SHORT_EPISODES = {"episode_length_s": 1.0}
 
 
-def make(name: str, num_envs: int, seed: int):
-    """``name``'s env of ``num_envs`` on the test device with ``ROBUST`` randomization."""
-    overrides = ROBUST
-    return tasks.make(name, num_envs=num_envs, device=DEVICE, seed=seed, **overrides)
+def make(name: str, num_envs: int, seed: int, **overrides):
+    """``name``'s env of ``num_envs`` on the test device with ``ROBUST`` randomization (a camera task's frames
+    ``SMALL_FRAMES``), and ``overrides``."""
+    if sees_images(name):
+        overrides["camera"] = SMALL_FRAMES
+    return tasks.make(name, num_envs=num_envs, device=DEVICE, seed=seed, **ROBUST, **overrides)
 
 
 def linear_policy(env, seed: int = 0):
@@ -63,8 +66,9 @@ def test_a_restarted_block_starts_and_steps_as_a_fresh_env_with_the_seed_and_the
 @pytest.mark.parametrize("name", tasks.names())
 def test_the_in_step_evaluation_judges_the_episodes_play_plays(name):
     """A block of 8 beside 8 training envs under random training actions, with a fixed policy, judged over whole
-    episodes (a rule that is never hopeless), gives the summary ``evaluate`` gives on a fresh env of 8 (play.py's)."""
-    env = make(name, 16, seed=3)
+    episodes of 1 s (a rule that is never hopeless), gives the summary ``evaluate`` gives on a fresh env of 8
+    (play.py's)."""
+    env = make(name, 16, seed=3, task=SHORT_EPISODES)
     evaluation = InStepEvaluation(env, 8, seed=5)
     evaluation.policy = linear_policy(env)
     vec_env = RslRlVecEnv(env, evaluation)
@@ -76,7 +80,8 @@ def test_the_in_step_evaluation_judges_the_episodes_play_plays(name):
         for _ in range(10):
             vec_env.step((torch.rand(8, env.num_actions, generator=generator) * 2 - 1).to(DEVICE))
         judged = evaluation.verdict(10, SolvedRule())
-    played = evaluate(FirstEpisodesRun(make(name, 8, seed=0), evaluation.policy, capture=False), 5)
+    played = evaluate(FirstEpisodesRun(make(name, 8, seed=0, task=SHORT_EPISODES), evaluation.policy, capture=False),
+                      5)
     assert judged == played and judged.cut_at_step is None
     assert not evaluation.running
 
@@ -94,6 +99,7 @@ def test_the_training_envs_step_the_same_with_the_evaluation_envs_beside_them(na
         cfg = train_config(name, device=DEVICE)
         cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.log_dir = 16, DEVICE, "none", str(tmp_path)
         cfg.eval.num_envs, cfg.eval.in_step, cfg.eval.min_interval, cfg.eval.max_interval = 8, in_step, 1, 1
+        cfg.env.camera.width_px = cfg.env.camera.height_px = 36  # the smallest frames the pixel tasks' CNN takes
         training = Training(cfg, tmp_path / f"run{in_step}")
         assert (training.runner.in_step is not None) == in_step and training.env.num_envs == 16
         training.runner.learn(3)

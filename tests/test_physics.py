@@ -1,6 +1,7 @@
 """The Newton cart-pole of each task's stage, stepped through the env, against an independent closed-form cart + pole
 model: the balance task's stage (and Newton's copy of Isaac Lab's) and the swing-up's (dm_control's model)."""
 
+import functools
 import math
 from pathlib import Path
 
@@ -14,6 +15,9 @@ from cartpole_warp.settings.files import data_path
 
 DURATION_S = 1.2
 PHYSICS_DT_S = 1.0 / 4000.0
+REFERENCE_SUBSTEPS = 2
+"""RK4 steps per env physics step of the closed-form references: at the tests' 1/4000 s, RK4's error (fourth order)
+is many orders below the solvers' (first order) and the tolerances."""
 
 
 STAGE = data_path("usd", "cartpole.usda")
@@ -71,7 +75,7 @@ def stage_parameters(name="ours"):
     }
 
 
-def closed_form_rollout(state0, forces, dt, p, substeps=10):
+def closed_form_rollout(state0, forces, dt, p, substeps=REFERENCE_SUBSTEPS):
     """RK4 of the rigid cart + rigid pole (Lagrange equations); force held constant over each dt.
 
     The pole angle theta turns about +X, so the pole's COM sits at (y, z) = (x - com sin theta, com cos theta).
@@ -279,7 +283,7 @@ def double_pole_parameters():
     return p
 
 
-def double_pole_rollout(state0, forces, dt, p, substeps=10):
+def double_pole_rollout(state0, forces, dt, p, substeps=REFERENCE_SUBSTEPS):
     """RK4 of a rigid cart and two rigid links in a chain (Lagrange equations); force held constant over each dt.
 
     ``state0`` and the result are (x, x', theta1, theta1', theta2, theta2') with theta2 relative to link 1, as the
@@ -323,22 +327,36 @@ def test_double_pole_stage_parameters():
     assert p["inertia1"] == p["inertia2"] == pytest.approx(0.25 * 1.0**2 / 12, rel=0.01)
 
 
+DOUBLE_POLE_STARTS = ((0.0, 0.0, math.pi - 0.3, 0.0, 0.4, 0.0), (0.5, -0.3, math.pi + 0.2, 0.5, -0.6, 1.0),
+                      (0.0, 0.2, 0.05, 0.0, -0.05, 0.3), (-0.5, 0.0, -0.1, 0.4, 0.15, -0.2))
+"""Two hanging starts and two upright ones: (x, x', theta1, theta1', theta2, theta2')."""
+
+
+@functools.cache
+def double_pole_references(steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """The actions (steps, 4) of ``test_double_pole_trajectory_matches_closed_form`` and the closed-form states
+    (steps, 4, 6) they give from ``DOUBLE_POLE_STARTS`` (the same for both solvers: computed once)."""
+    commands = actions(steps, (0.3, 0.2, -0.1))
+    commands = np.concatenate([commands, commands[:, :1]], axis=1)
+    p = double_pole_parameters()
+    references = [double_pole_rollout(np.array(start), 40.0 * np.clip(commands[:, i], -1, 1), PHYSICS_DT_S, p)
+                  for i, start in enumerate(DOUBLE_POLE_STARTS)]
+    return commands, np.stack(references, axis=1)
+
+
 @pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
 def test_double_pole_trajectory_matches_closed_form(solver, make):
     """One env step after another for 1.2 s (hanging starts) and 0.6 s (upright ones, where the chain is unstable and
     differences grow fastest), through the cart-double-pole-balance env, against the closed-form cart + double
     pendulum with the stage's parameters; same tolerance as the single pole's."""
-    p = double_pole_parameters()
-    starts = torch.tensor([[0.0, 0.0, math.pi - 0.3, 0.0, 0.4, 0.0], [0.5, -0.3, math.pi + 0.2, 0.5, -0.6, 1.0],
-                           [0.0, 0.2, 0.05, 0.0, -0.05, 0.3], [-0.5, 0.0, -0.1, 0.4, 0.15, -0.2]])
+    starts = torch.tensor(DOUBLE_POLE_STARTS)
     env = make(4, task_name="cart-double-pole-balance",
                sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
                task={"episode_length_s": None, "reset_dist_m": 100.0, "min_tip_height_m": -10.0})
     assert env.cfg.task.max_push_effort_n == 40.0
     env.set_state(starts.to(env.device))
     steps = round(DURATION_S / PHYSICS_DT_S)
-    commands = actions(steps, (0.3, 0.2, -0.1))
-    commands = np.concatenate([commands, commands[:, :1]], axis=1)
+    commands, references = double_pole_references(steps)
     trajectory = []
     for k in range(steps):
         obs, _, terminated, truncated, _ = env.step(torch.tensor(commands[k], dtype=torch.float32,
@@ -347,7 +365,7 @@ def test_double_pole_trajectory_matches_closed_form(solver, make):
         trajectory.append(obs.cpu().numpy().astype(np.float64)[:, [0, 3, 1, 4, 2, 5]])
     trajectory = np.array(trajectory)
     for i in range(4):
-        reference = double_pole_rollout(starts[i].numpy(), 40.0 * np.clip(commands[:, i], -1, 1), PHYSICS_DT_S, p)
+        reference = references[:, i]
         length = steps if i < 2 else steps // 2
         assert np.abs(reference[:length, 0]).max() < 3.5, "the cart stays clear of the rail's 4 m limits"
         diff = trajectory[:length, i] - reference[:length]
@@ -421,7 +439,7 @@ def test_the_chain_reference_is_the_double_pendulums_closed_form():
              "spacing": p["length1"], "gravity": p["gravity"]}
     start = [0.1, 0.2, 0.3, -0.4, -0.5, 0.6]
     forces = 20.0 * np.sin(np.arange(100) * 0.1)
-    closed = double_pole_rollout(start, forces, 0.01, p)
+    closed = double_pole_rollout(start, forces, 0.01, p, substeps=10)
     numeric = chain_rollout(start, forces, 0.01, chain, 2, substeps=10)
     assert np.abs(closed).max() > 1.0
     np.testing.assert_allclose(numeric, closed, atol=1e-9)

@@ -142,16 +142,22 @@ print(len(tensordict_import._waiting), tensordict.utils._lock_warn._dynamo_marke
 
 
 @pytest.mark.slow
-def test_warmup_fills_an_empty_kernel_cache_so_that_training_compiles_nothing(tmp_path):
+def test_warmup_fills_an_empty_kernel_cache_so_that_training_and_the_differentiable_rollout_compile_nothing(tmp_path):
+    """``warmup --gradients`` into an empty kernel cache compiles the task's kernels, the recorders' and those with
+    adjoints, saying so for the differentiable rollout (tools.sysid's, --learner apg's); after it, a training run and
+    the same rollout with its backward pass compile nothing and add nothing to the cache."""
     cache = tmp_path / "warp-cache"
     with_cache = {**os.environ, "WARP_CACHE_PATH": str(cache)}
-    result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance"], cwd=REPO,
-                            capture_output=True, text=True, timeout=900, env=with_cache)
+    result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance", "--gradients"],
+                            cwd=REPO, capture_output=True, text=True, timeout=900, env=with_cache)
     assert result.returncode == 0, result.stderr
     assert "compiling Warp kernels for CartpoleBalanceEnv on cpu" in result.stdout
+    assert "compiling Warp kernels for the differentiable rollout (with adjoints) on cpu" in result.stdout
     assert "cartpole-balance: ready on cpu in" in result.stdout
-    filled = sorted(p.name for p in (cache / os.listdir(cache)[0]).iterdir())
+    folder = cache / os.listdir(cache)[0]
+    filled = sorted(p.name for p in folder.iterdir())
     assert any("featherstone" in name for name in filled) and any("viewer" in name for name in filled)
+    assert any(".grad" in name for name in filled), filled
 
     train = ["train.py", "--num-envs", "64", "--max-iterations", "1", "--logger", "none", "--env.verbose"]
     result = subprocess.run([sys.executable, *train, "--log-dir", tmp_path / "logs"], cwd=REPO, capture_output=True,
@@ -161,38 +167,6 @@ def test_warmup_fills_an_empty_kernel_cache_so_that_training_compiles_nothing(tm
     assert loads and all(line.endswith("(cached)") for line in loads), "\n".join(loads)
     said = [line for line in result.stdout.splitlines() if "compiles" in line or line.startswith("compiling")]
     assert not said, f"a warm run says nothing of compiling: {said}"
-    assert sorted(p.name for p in (cache / os.listdir(cache)[0]).iterdir()) == filled, "nothing new in the cache"
-
-
-@pytest.mark.parametrize("gradients", [False, True])
-def test_newtons_modules_compile_adjoints_only_where_asked(gradients):
-    """The Warp option that decides whether adjoint code is compiled, on the modules an env loads; Warp's global
-    default stays (True)."""
-    code = f"""
-import warp as wp
-import cartpole_warp
-from cartpole_warp.engine.scene import model_modules, solver_modules
-env = cartpole_warp.make_env(num_envs=4, device="cpu", sim={{"gradients": {gradients}}})
-print(sorted({{m.options["enable_backward"] for m in model_modules() + solver_modules("featherstone")}}),
-      wp.config.enable_backward)
-"""
-    result = python(code)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == [f"[{gradients}]", "True"]
-
-
-@pytest.mark.slow
-def test_the_first_differentiable_rollout_says_it_compiles_and_warmup_gradients_compiles_it_ahead(tmp_path):
-    """``warmup --gradients`` into an empty kernel cache builds a differentiable rollout (tools.sysid's, --learner
-    apg's), which says that it compiles; after it, the same rollout with its backward pass compiles nothing."""
-    cache = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / "cache")}
-    result = subprocess.run([sys.executable, "-m", "cartpole_warp.warmup", "--task", "cartpole-balance", "--gradients",
-                             "--no-recording"], cwd=REPO, capture_output=True, text=True, timeout=900, env=cache)
-    assert result.returncode == 0, result.stderr
-    assert "compiling Warp kernels for the differentiable rollout (with adjoints) on cpu" in result.stdout
-    folder = tmp_path / "cache" / os.listdir(tmp_path / "cache")[0]
-    filled = sorted(p.name for p in folder.iterdir())
-    assert any(".grad" in name for name in filled), filled
     code = """
 import torch
 import cartpole_warp
@@ -205,7 +179,24 @@ actions = torch.zeros(1, 1, 1, requires_grad=True)
 DifferentiableRollout(env, horizon=1)(q, qd, actions=actions).rewards.sum().backward()
 """
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=900,
-                            env=cache)
+                            env=with_cache)
     assert result.returncode == 0, result.stderr
     assert "compiling" not in result.stdout, result.stdout
-    assert sorted(p.name for p in folder.iterdir()) == filled, "the rollout and its backward compiled nothing new"
+    assert sorted(p.name for p in folder.iterdir()) == filled, "training, the rollout and its backward compiled nothing"
+
+
+def test_newtons_modules_compile_adjoints_only_where_asked():
+    """The Warp option that decides whether adjoint code is compiled, on the modules each env build loads (set again
+    by every build); Warp's global default stays (True)."""
+    code = """
+import warp as wp
+import cartpole_warp
+from cartpole_warp.engine.scene import model_modules, solver_modules
+for gradients in (False, True, False):
+    env = cartpole_warp.make_env(num_envs=4, device="cpu", sim={"gradients": gradients})
+    print(sorted({m.options["enable_backward"] for m in model_modules() + solver_modules("featherstone")}),
+          wp.config.enable_backward)
+"""
+    result = python(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["[False]", "True", "[True]", "True", "[False]", "True"]

@@ -63,7 +63,7 @@ def test_a_variant_of_other_flags_runs_with_its_own_defaults(tmp_path, capsys):
     from cartpole_warp import tasks
     from cartpole_warp.tools.sweep import main
 
-    assert main(["--variants", "algorithm=apg agent.apg.gamma=0.98", "--seeds", "0", "--max-iterations", "2",
+    assert main(["--variants", "learner=apg agent.apg.gamma=0.98", "--seeds", "0", "--max-iterations", "2",
                  "--no-stop-when-solved", "--log-dir", str(tmp_path)]) == 0
     assert "| `--learner apg --agent.apg.gamma 0.98` | 0 | not solved |" in capsys.readouterr().out
     summary = json.loads(next(tmp_path.rglob("summary.json")).read_text())

@@ -93,7 +93,7 @@ def load_modules(modules: list[wp.Module], device: str, what: str) -> None:
     if missing:
         logger.info("compiling Warp kernels for %s on %s (first run with this code on this machine; cached in %s): "
                     "%d modules ...", what, device, wp.config.kernel_cache_dir, len(missing))
-    wp.force_load(device=device, modules=modules, max_workers=max(1, min(len(missing), os.cpu_count() or 1)))
+    wp.force_load(device=device, modules=modules, max_workers=max(1, min(len(missing), len(os.sched_getaffinity(0)))))
 
 
 NO_CUDA = "device {!r} requested but no CUDA device is available here; use --device cpu"
