@@ -31,6 +31,21 @@ def pytest_xdist_auto_num_workers(config) -> int:
     return max(1, min(len(os.sched_getaffinity(0)), int(available_gb // GB_PER_WORKER)))
 
 
+ALL_CORES = os.sched_getaffinity(0)
+"""The cores of the test run, before ``pytest_configure`` gives each test process its share."""
+
+
+@contextlib.contextmanager
+def on_all_cores():
+    """Inside: this process (and what it starts) may use every core of the run."""
+    share = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, ALL_CORES)
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, share)
+
+
 def pytest_configure(config):
     """A test process of pytest-xdist's ``-n N`` keeps its share of the cores (every N-th): the env's CPU shards,
     torch's threads and the processes a test starts then count the cores of their own process and do not fight the

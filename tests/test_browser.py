@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import system_command
+from conftest import on_all_cores, system_command
 from PIL import Image
 
 from cartpole_warp.viz.web import free_port
@@ -85,7 +85,8 @@ def browser():
                      "--use-angle=swiftshader", "--window-size=1280,800"):
         options.add_argument(argument)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(driver_path), options=options)
+    with on_all_cores():  # Chromium draws WebGL in software: on every core, not on this test process's share
+        driver = webdriver.Chrome(service=Service(driver_path), options=options)
     yield driver
     driver.quit()
 
