@@ -101,13 +101,13 @@ def test_the_old_names_go_in_the_release_they_name(tmp_path, capsys):
     """Every alias answered for a release says which one drops it (``REMOVED_IN``); once the package's version reaches
     it this test fails: delete the aliases (``renamed``, ``renamed_attribute``, ``moved_names``, ``MOVED_MODULES``, the
     ``evaluate=`` keyword) and this test."""
-    import importlib.metadata
-
+    import tomllib
     from packaging.version import Version
 
     from cartpole_warp.settings.deprecation import REMOVED_IN
 
-    assert Version(importlib.metadata.version("cartpole_warp")) < Version(REMOVED_IN)
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    assert Version(tomllib.loads(pyproject.read_text())["project"]["version"]) < Version(REMOVED_IN)
     with pytest.warns(DeprecationWarning, match=f"the old name goes in {REMOVED_IN}"):
         assert importlib.import_module("cartpole_warp.rl.runner").CartpoleRunner.__name__ == "TaskRunner"
     from cartpole_warp.play import GRID_ALIASES
