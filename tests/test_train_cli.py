@@ -44,7 +44,8 @@ def only_run(log_dir, experiment=tasks.DEFAULT_TASK):
 @pytest.fixture(scope="module", params=tasks.names())
 def trained(request, tmp_path_factory):
     """A 2-iteration run of train.py with 64 envs, for every task, a camera task's on frames of 36 x 36 (the smallest
-    its CNN takes); its ``main`` in this process (test_promises.py and the slow tests run the script in a fresh one)."""
+    its CNN takes); its ``main`` in this process, as the trainings to solved (test_promises.py runs the script in a
+    fresh one)."""
     log_dir = tmp_path_factory.mktemp("logs")
     task = request.param
     frames = ["--env.camera.width-px", "36", "--env.camera.height-px", "36"] if sees_images(task) else []
@@ -502,8 +503,8 @@ def train_to_solved_and_play(tmp_path, task: str, *flags) -> tuple[dict, dict]:
     learn fails (on this project's 2-core CPU, 8 of 10 swing-up seeds solved at iterations 175-450 of its 500; the
     other two were still rising there)."""
     budget = 2 * train_config(task).agent.max_iterations
-    result = run_script("train.py", "--task", task, "--device", "cpu", "--stop-when-solved", "--logger", "none",
-                        "--log-dir", tmp_path, "--max-iterations", budget, *flags, timeout=1800)
+    result = call_main("train", "--task", task, "--device", "cpu", "--stop-when-solved", "--logger", "none",
+                       "--log-dir", tmp_path, "--max-iterations", budget, *flags)
     assert result.returncode == 0, result.stdout + result.stderr
     run = only_run(tmp_path, task)
     summary = json.loads((run / "summary.json").read_text())
@@ -511,7 +512,7 @@ def train_to_solved_and_play(tmp_path, task: str, *flags) -> tuple[dict, dict]:
     assert summary["solved"] and summary["status"] == "solved" and summary["task"] == task, summary
     assert summary["best"] == {"iteration": summary["iterations"] - 1, "solved": True,
                                metric: summary["solved_at"][metric]}, "the stop's policy is the best one"
-    result = run_script("play.py", "--headless", "--run", run)
+    result = call_main("play", "--headless", "--run", run)
     assert result.returncode == 0, result.stderr
     played = json.loads((run / "play" / "result.json").read_text())
     assert played["task"] == task and played["episodes"] == summary["evaluation"]["episodes"] == 256
@@ -549,10 +550,9 @@ def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
     import newton.examples
 
     stage = newton.examples.get_asset("cartpole_single_pendulum.usda")
-    result = run_script("train.py", "--num-envs", "512", "--env.task.episode-length-s", "5", "--max-iterations", "200",
-                        "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path,
-                        "--env.sim.stage-path", stage, "--env.task.cart-joint", "slider_to_cart",
-                        "--env.task.pole-joint", "cart_to_pole", timeout=600)
+    result = call_main("train", "--num-envs", "512", "--env.task.episode-length-s", "5", "--max-iterations", "200",
+                       "--stop-when-solved", "--logger", "none", "--log-dir", tmp_path, "--env.sim.stage-path", stage,
+                       "--env.task.cart-joint", "slider_to_cart", "--env.task.pole-joint", "cart_to_pole")
     assert result.returncode == 0, result.stdout + result.stderr
     run = only_run(tmp_path)
     assert json.loads((run / "summary.json").read_text())["solved"]
