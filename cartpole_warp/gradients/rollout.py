@@ -33,21 +33,12 @@ import torch
 import warp as wp
 
 from ..engine.env import BatchedEnv
-from ..engine.kernels import TaskFunctions, constants_of, kernel_constants
+from ..engine.kernels import END_DIVERGED, END_NONE, END_TIME_LIMIT, TaskFunctions, constants_of, kernel_constants
 from ..engine.parameters import ACTUATOR_SCALE, COM, DAMPING, FRICTION, GRAVITY, MASS, Quantity, of_quantity
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_friction, write_env
 from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
-from ..engine.step_rules import (
-    END_DIVERGED,
-    END_NONE,
-    END_TIME_LIMIT,
-    all_within,
-    clip_actions,
-    role_state,
-    set_role_state,
-    with_time_limit,
-)
+from ..engine.step_rules import all_within, clip_actions, role_state, set_role_state, with_time_limit
 from ..engine.streams import StreamOrder
 
 
