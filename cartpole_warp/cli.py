@@ -115,14 +115,9 @@ def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:
 def renamed_flags(argv: list[str], renames: dict[str, str]) -> list[str]:
     """``argv`` with each old spelling of a flag (``renames``: old -> new) written as the new one, and a line on stderr
     naming both: the old spelling is taken until ``settings.deprecation.REMOVED_IN``."""
-    out = []
-    for arg in argv:
-        _, equals, value = arg.partition("=")
-        new = renames.get(flag_name(arg)) if arg.startswith("--") else None
-        if new:
-            print(f"note: {flag_name(arg)} is now {new}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
-        out.append(f"{new}{equals}{value}" if new else arg)
-    return out
+    for old in {flag_name(arg) for arg in argv if arg.startswith("--")} & renames.keys():
+        print(f"note: {old} is now {renames[old]}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
+    return expand_aliases(argv, renames)
 
 
 def asks_help(argv: list[str]) -> bool:

@@ -481,8 +481,7 @@ class DifferentiableRollout:
         with self.order:
             for tape in (self.physics_tape, self.observe_tape, *(step.tape for step in self.steps)):
                 tape.zero()
-            counted = wp.to_torch(self.episode_steps)
-            counted.copy_(episode_steps) if episode_steps is not None else counted.zero_()
+            wp.to_torch(self.episode_steps).copy_(0 if episode_steps is None else episode_steps)
         token = PhysicsFunction.apply(self, *self._physics_tensors(params or {}))
         q, qd = q0, qd0
         obs = ObserveFunction.apply(self, q, qd)
