@@ -12,7 +12,8 @@ import cartpole_warp
 from cartpole_warp.settings.config import ConfigError
 
 TASKS = cartpole_warp.tasks.names()
-RANGES = {"mass_scale": {"cart": [0.5, 2.0], "pole": [0.5, 2.0]}, "com_offset_m": {"pole": [-0.1, 0.1]},
+RANGES = {"mass_scale": {"cart": [0.5, 2.0], "pole": [0.5, 2.0]}, "inertia_scale": {"pole": [0.8, 1.25]},
+          "com_offset_m": {"pole": [-0.1, 0.1]},
           "joint_damping": {"pole": [0.0, 0.05]}, "joint_friction": {"cart": [0.0, 0.5]},
           "actuator_scale": [0.7, 1.3], "gravity_m_s2": [9.0, 10.5], "action_delay_steps": 2}
 SHORT = {"episode_length_s": 0.2}
@@ -29,8 +30,8 @@ def rollout(env, actions):
 @pytest.mark.parametrize("task_name", TASKS)
 def test_physical_params_shapes_units_bounds_and_model(task_name, make):
     """Every value is (N,) within its configured range around the stage's nominal value, the inertia follows the
-    mass, the task's force per action follows the actuator scale, and the Newton model holds what each env reports
-    (mass, inverse mass, centre of mass, damping, gravity)."""
+    mass and the inertia scale, the task's force per action follows the actuator scale, and the Newton model holds
+    what each env reports (mass, inverse mass, inertia, centre of mass, damping, gravity)."""
     env = make(512, task_name=task_name, randomization=RANGES)
     nominal = make(1, task_name=task_name).physical_params()
     params = env.physical_params()
@@ -41,7 +42,10 @@ def test_physical_params_shapes_units_bounds_and_model(task_name, make):
         scale = params[f"{role}_mass_kg"] / nominal[f"{role}_mass_kg"]
         assert 0.5 <= scale.min() < 0.6 and 1.9 < scale.max() <= 2.0, role
         ratio = params[f"{role}_inertia_kg_m2"] / nominal[f"{role}_inertia_kg_m2"]
-        assert torch.allclose(ratio, scale, rtol=1e-5)
+        assert torch.allclose(ratio, scale * params[f"{role}_inertia_scale"], rtol=1e-5)
+    inertia_scale = params["pole_inertia_scale"]
+    assert 0.8 <= inertia_scale.min() < 0.85 and 1.2 < inertia_scale.max() <= 1.25
+    assert (params["cart_inertia_scale"] == 1.0).all(), "not randomized: the stage's shape"
     shift = params["pole_com_m"] - nominal["pole_com_m"]
     assert -0.1 <= shift.min() < -0.09 and 0.09 < shift.max() <= 0.1
     assert torch.equal(params["cart_com_m"], nominal["cart_com_m"].expand(512)), "not randomized: the stage's"
@@ -57,6 +61,9 @@ def test_physical_params_shapes_units_bounds_and_model(task_name, make):
     for r, role in enumerate(("cart", "pole")):
         np.testing.assert_allclose(mass[:, bodies[r]], params[f"{role}_mass_kg"].cpu().numpy(), rtol=1e-6)
     np.testing.assert_allclose(model.body_inv_mass.numpy().reshape(512, -1), 1 / mass, rtol=1e-5)
+    axis = env.physics.bodies[1].axis
+    inertia = model.body_inertia.numpy().reshape(512, -1, 3, 3)[:, bodies[1]]
+    np.testing.assert_allclose(inertia @ axis @ axis, params["pole_inertia_kg_m2"].cpu().numpy(), rtol=1e-5)
     hinge = model.joint_X_c.numpy().reshape(512, -1, 7)[:, roles[1], :3]  # the joint in the pole's frame
     com = np.linalg.norm(model.body_com.numpy().reshape(512, -1, 3)[:, bodies[1]] - hinge, axis=1)
     np.testing.assert_allclose(com, params["pole_com_m"].cpu().numpy(), rtol=1e-5)
@@ -76,7 +83,7 @@ def test_parameter_table_names_every_parameter_and_the_docs_say_the_same(make, r
         env = make(2, task_name=task_name)
         names = [p.name for p in env.physics.table]
         assert list(env.physical_params())[:len(names)] == names, task_name
-        assert len(names) == 5 * len(env.joint_roles) + 3
+        assert len(names) == 6 * len(env.joint_roles) + 3
         assert {p.role for p in env.physics.table} == {*env.joint_roles, None}
     text = (repo / "docs" / "randomization.md").read_text()
     rows = {line.split("|")[1].strip().split(" ")[0].strip("`"): [cell.strip() for cell in line.split("|")[1:-1]]
@@ -133,21 +140,26 @@ def test_startup_draws_once(make, random_actions):
 
 @pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
 def test_changing_one_env_changes_no_other(solver, make, random_actions):
-    """Heavier pole, weaker actuator and lower gravity in env 3 alone: env 3's trajectory changes, every other env's
-    stays bitwise the same."""
+    """Heavier pole, weaker actuator and lower gravity in env 3 alone, the pole's friction in env 5 alone (set on an
+    env that does not randomize it), its inertia scale in env 6 alone: those envs' trajectories change, every other
+    env's stays bitwise the same."""
     actions = random_actions(8, 30, scale=0.3)
     trajectories = []
     for change in (False, True):
         env = make(8, sim={"solver": solver}, task=FREE)
         if change:
-            params, env_3 = env.physical_params(), torch.arange(8, device=env.device) == 3
-            env.set_physical_params(pole_mass_kg=torch.where(env_3, 3.0, params["pole_mass_kg"]),
-                                    actuator_scale=torch.where(env_3, 0.5, params["actuator_scale"]),
-                                    gravity_m_s2=torch.where(env_3, 5.0, params["gravity_m_s2"]))
+            params, index = env.physical_params(), torch.arange(8, device=env.device)
+            env.set_physical_params(pole_mass_kg=torch.where(index == 3, 3.0, params["pole_mass_kg"]),
+                                    actuator_scale=torch.where(index == 3, 0.5, params["actuator_scale"]),
+                                    gravity_m_s2=torch.where(index == 3, 5.0, params["gravity_m_s2"]),
+                                    pole_friction_n_m=torch.where(index == 5, 2.0, params["pole_friction_n_m"]),
+                                    pole_inertia_scale=torch.where(index == 6, 2.0, params["pole_inertia_scale"]))
         trajectories.append(rollout(env, actions))
-    others = torch.arange(8, device=actions.device) != 3
+    changed = torch.tensor([3, 5, 6])
+    others = ~torch.isin(torch.arange(8), changed).to(actions.device)
     assert torch.equal(trajectories[0][:, others], trajectories[1][:, others])
-    assert (trajectories[0][:, 3] - trajectories[1][:, 3]).abs().max() > 0.01
+    for e in changed.tolist():
+        assert (trajectories[0][:, e] - trajectories[1][:, e]).abs().max() > 0.01, e
 
 
 def test_action_delay_shifts_the_actions(make, random_actions, device):

@@ -99,7 +99,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         """Names of the ``end_reason`` codes, by code."""
         self._kernels = build_kernels(self.functions, self.config_class, len(self.joint_roles), self.num_actions,
                                       self.num_obs, f"{type(self).__module__}.{type(self).__qualname__}.kernels")
-        stage = self.stage_path = (Path(cfg.sim.stage_path) if cfg.sim.stage_path
+        stage = self.stage_path = (cfg.sim.stage_file if cfg.sim.stage_path
                                    else self.stage if isinstance(self.stage, Path) else data_path("usd", self.stage))
         cfg.randomization.validate(self.joint_roles)
         self.observations = observations_of(cfg.camera, cfg.num_envs, self.device)
@@ -325,10 +325,11 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         env's next episode start draws anew."""
         import torch
 
-        n = self.num_envs
         for name, value in values.items():
-            self._check(name, value, ((n,),), value.dtype if isinstance(value, torch.Tensor) else torch.float32)
-        self.physics.set(values)
+            self._check(name, value, ((self.num_envs,),), value.dtype if torch.is_tensor(value) else torch.float32)
+        if self.physics.set(values):  # friction from now on, which the captured step lacks: capture it again
+            self._step.close()
+            self._step = ShardedStep(self.shards, self._step_kernels, self._order, self._step.replay is not None)
         with self._order, warp_output(self.cfg.verbose):
             for shard in self.shards:
                 self.physics.write(shard)

@@ -11,7 +11,8 @@ from typing import Literal
 @dataclass(frozen=True)
 class Quantity:
     """A kind of physical parameter. Per joint role its name is ``<role>_<key>_<unit suffix>`` (the suffix of a
-    sliding joint's or of a turning one's unit), per env ``<key>`` (its unit in the key)."""
+    sliding joint's or of a turning one's unit; none for a factor, unit '1'), per env ``<key>`` (its unit in the
+    key)."""
 
     key: str
     per_role: bool
@@ -36,6 +37,8 @@ class Quantity:
         if not self.per_role:
             return self.key
         unit = self.slider_unit if slider else self.hinge_unit
+        if unit == "1":
+            return f"{role}_{self.key}"
         return f"{role}_{self.key}_{unit.lower().replace(' ', '_').replace('/', '_').replace('^', '')}"
 
 
@@ -44,7 +47,11 @@ MASS = Quantity("mass", True, "kg", "kg", "mass_scale", "scale", True, True, 0.0
 COM = Quantity("com", True, "m", "m", "com_offset_m", "offset", True, True, 0.0)
 """That body's centre of mass: its distance from the joint."""
 INERTIA = Quantity("inertia", True, "kg m^2", "kg m^2", None, "none", False, False, 0.0)
-"""That body's moment of inertia about its centre of mass around the joint's axis (derived from the mass)."""
+"""That body's moment of inertia about its centre of mass around the joint's axis (derived: the stage's, times the
+mass's factor and the inertia scale)."""
+INERTIA_SCALE = Quantity("inertia_scale", True, "1", "1", "inertia_scale", "value", True, True, 0.0, positive=True)
+"""A factor on that body's inertia about its centre of mass beyond the mass's (1: the stage's shape): a body whose
+shape differs from the stage's, at the same mass."""
 DAMPING = Quantity("damping", True, "N s/m", "N m s/rad", "joint_damping", "value", True, True, 0.0)
 """The joint's viscous damping."""
 FRICTION = Quantity("friction", True, "N", "N m", "joint_friction", "value", True, True, 0.0)
@@ -56,7 +63,7 @@ GRAVITY = Quantity("gravity_m_s2", False, "m/s^2", "m/s^2", "gravity_m_s2", "val
 ACTION_DELAY = Quantity("action_delay_steps", False, "env steps", "env steps", "action_delay_steps", "value", True,
                         False, 0.0)
 """The age of the action the env applies (an integer; at most ``randomization.action_delay_steps``)."""
-QUANTITIES = (MASS, COM, INERTIA, DAMPING, FRICTION, ACTUATOR_SCALE, GRAVITY, ACTION_DELAY)
+QUANTITIES = (MASS, COM, INERTIA, INERTIA_SCALE, DAMPING, FRICTION, ACTUATOR_SCALE, GRAVITY, ACTION_DELAY)
 """Every quantity, in the order of ``env.physical_params()``."""
 
 

@@ -2,12 +2,12 @@
 written into the Newton model's per-world fields, and the solver told (``notify_model_changed``).
 
 Per joint role (the task's 'cart', 'pole', ...): the mass of the body the role's joint moves (its inertia scaled
-with it), that body's centre of mass along the line from the joint to it, the joint's viscous damping and its
-Coulomb friction; per env: the actuator scale, gravity's magnitude and the action delay. Masses, centres of mass,
-damping and gravity are Newton model fields that both solvers read per world (Featherstone re-derives its spatial
-inertias in kernels, MuJoCo-Warp recomputes its derived constants); friction, actuator scale and delay act in the
-env's own kernels (Featherstone models no joint friction). Everything here runs in kernels, so it sits inside the
-captured env step.
+with it), a further factor on that body's inertia (another shape), that body's centre of mass along the line from the
+joint to it, the joint's viscous damping and its Coulomb friction; per env: the actuator scale, gravity's magnitude
+and the action delay. Masses, inertias, centres of mass, damping and gravity are Newton model fields that both
+solvers read per world (Featherstone re-derives its spatial inertias in kernels, MuJoCo-Warp recomputes its derived
+constants); friction, actuator scale and delay act in the env's own kernels (Featherstone models no joint friction).
+Everything here runs in kernels, so it sits inside the captured env step.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from .parameters import (
     FRICTION,
     GRAVITY,
     INERTIA,
+    INERTIA_SCALE,
     MASS,
     Quantity,
     parameter_table,
@@ -89,6 +90,8 @@ class Ranges:
 
     mass_scale: wp.array2d(dtype=float)
     mass_on: wp.array(dtype=wp.int32)
+    inertia_scale: wp.array2d(dtype=float)
+    inertia_on: wp.array(dtype=wp.int32)
     com_offset: wp.array2d(dtype=float)
     com_on: wp.array(dtype=wp.int32)
     damping: wp.array2d(dtype=float)
@@ -134,6 +137,7 @@ class EnvPhysics:
     """Per-env parameters (SI) of a shard's envs: (n, roles) and (n,) arrays."""
 
     mass: wp.array2d(dtype=float)
+    inertia_scale: wp.array2d(dtype=float)
     com: wp.array2d(dtype=float)
     damping: wp.array2d(dtype=float)
     friction: wp.array2d(dtype=float)
@@ -158,11 +162,11 @@ class ModelFields:
 @wp.func
 def write_env(env: int, layout: Layout, physics: EnvPhysics, model: ModelFields):
     """Env ``env``'s (shard-local) parameters into its world's model fields, inverses included; the inertia about
-    the centre of mass scales with the mass."""
+    the centre of mass scales with the mass and with the inertia scale."""
     for r in range(physics.mass.shape[1]):
         b = env * layout.bodies_per_env + layout.body[r]
         m = physics.mass[env, r]
-        inertia = layout.inertia[r] * (m / layout.mass[r])
+        inertia = layout.inertia[r] * (m / layout.mass[r] * physics.inertia_scale[env, r])
         model.body_mass[b] = m
         model.body_inv_mass[b] = 1.0 / m
         model.body_inertia[b] = inertia
@@ -200,6 +204,10 @@ def draw_physics(everywhere: int, ended: wp.array(dtype=wp.int32), ranges: Range
     u = wp.randf(s)
     physics.gravity[env] = pick(ranges.gravity_on, u, ranges.gravity[0], ranges.gravity[1], layout.gravity)
     physics.delay[env] = wp.randi(s, 0, ranges.max_delay + 1)
+    for r in range(physics.mass.shape[1]):  # after the others: their draws are those of a stream without it
+        u = wp.randf(s)
+        physics.inertia_scale[env, r] = pick(ranges.inertia_on[r], u, ranges.inertia_scale[r, 0],
+                                             ranges.inertia_scale[r, 1], 1.0)
     rng_state[env] = s
     write_env(env, layout, physics, model)
 
@@ -234,9 +242,13 @@ class PhysicalParams:
             return wp.array(np.tile(np.asarray(values, dtype=np.float32), (n, 1)), dtype=float, device=device)
 
         self.mass = per_role([b.mass for b in self.bodies])
+        self.inertia_scale = per_role(np.ones(r))
         self.com = per_role([b.com_distance for b in self.bodies])
         self.damping = per_role([b.damping for b in self.bodies])
         self.friction = per_role(np.zeros(r))
+        self.applies_friction = bool(cfg.joint_friction)
+        """Whether the step applies joint friction: where it is randomized, or once ``set`` has given it a value
+        (the env then captures its step again)."""
         self.actuator_scale = wp.full(n, 1.0, dtype=float, device=device)
         self.gravity = wp.full(n, self.gravity_m_s2, dtype=float, device=device)
         self.delay = wp.zeros(n, dtype=wp.int32, device=device)
@@ -244,7 +256,7 @@ class PhysicalParams:
         """Where each role's values sit in a scene of this env's stage and env count, and the stage's values."""
         self._ranges = self._make_ranges()
         flags = 0
-        if cfg.mass_scale or cfg.com_offset_m:
+        if cfg.mass_scale or cfg.inertia_scale or cfg.com_offset_m:
             flags |= newton.ModelFlags.BODY_INERTIAL_PROPERTIES
         if cfg.joint_damping:
             flags |= newton.ModelFlags.JOINT_DOF_FORCE_PROPERTIES
@@ -293,6 +305,7 @@ class PhysicalParams:
 
         ranges = Ranges()
         ranges.mass_scale, ranges.mass_on = per_role(cfg.mass_scale)
+        ranges.inertia_scale, ranges.inertia_on = per_role(cfg.inertia_scale)
         ranges.com_offset, ranges.com_on = per_role(cfg.com_offset_m)
         ranges.damping, ranges.damping_on = per_role(cfg.joint_damping)
         ranges.friction, ranges.friction_on = per_role(cfg.joint_friction)
@@ -309,9 +322,10 @@ class PhysicalParams:
         return self.cfg.on and self.cfg != RandomizationConfig(at=self.cfg.at, obs_noise_std=self.cfg.obs_noise_std)
 
     def friction_hook(self, shard, actuator_f: wp.array, role_dofs: wp.array) -> Callable[[], None] | None:
-        """What runs before each of the shard's solver steps where joint friction is randomized: the joints' forces =
-        ``actuator_f`` (every env's) less their friction (``add_friction``); None where it is not."""
-        if not self.cfg.joint_friction:
+        """What runs before each of the shard's solver steps where the step applies joint friction
+        (``applies_friction``): the joints' forces = ``actuator_f`` (every env's) less their friction
+        (``add_friction``); None where it does not."""
+        if not self.applies_friction:
             return None
         s = shard.scene
 
@@ -327,6 +341,7 @@ class PhysicalParams:
         rows, m = shard.rows, shard.scene.model
         physics = EnvPhysics()
         physics.mass, physics.com, physics.damping = rows(self.mass), rows(self.com), rows(self.damping)
+        physics.inertia_scale = rows(self.inertia_scale)
         physics.friction, physics.actuator_scale = rows(self.friction), rows(self.actuator_scale)
         physics.gravity, physics.delay = rows(self.gravity), rows(self.delay)
         model = ModelFields()
@@ -363,7 +378,8 @@ class PhysicalParams:
 
     def _arrays(self) -> dict[Quantity, torch.Tensor]:
         """The persistent arrays as tensors, by quantity ((N, roles) per role, (N,) per env)."""
-        return {MASS: wp.to_torch(self.mass), COM: wp.to_torch(self.com), DAMPING: wp.to_torch(self.damping),
+        return {MASS: wp.to_torch(self.mass), INERTIA_SCALE: wp.to_torch(self.inertia_scale),
+                COM: wp.to_torch(self.com), DAMPING: wp.to_torch(self.damping),
                 FRICTION: wp.to_torch(self.friction), ACTUATOR_SCALE: wp.to_torch(self.actuator_scale),
                 GRAVITY: wp.to_torch(self.gravity), ACTION_DELAY: wp.to_torch(self.delay)}
 
@@ -374,7 +390,8 @@ class PhysicalParams:
         def row(values):
             return torch.tensor([values], dtype=torch.float32)
 
-        return self._named({MASS: row([b.mass for b in self.bodies]), COM: row([b.com_distance for b in self.bodies]),
+        return self._named({MASS: row([b.mass for b in self.bodies]), INERTIA_SCALE: torch.ones(1, len(self.roles)),
+                            COM: row([b.com_distance for b in self.bodies]),
                             DAMPING: row([b.damping for b in self.bodies]), FRICTION: torch.zeros(1, len(self.roles)),
                             ACTUATOR_SCALE: torch.ones(1), GRAVITY: torch.tensor([self.gravity_m_s2]),
                             ACTION_DELAY: torch.zeros(1, dtype=torch.int32)})
@@ -384,7 +401,8 @@ class PhysicalParams:
         out = {}
         for p in self.table:
             if p.quantity is INERTIA:
-                out[p.name] = arrays[MASS][:, p.role_index] * axis_inertia[p.role_index]
+                out[p.name] = (arrays[MASS][:, p.role_index] * arrays[INERTIA_SCALE][:, p.role_index]
+                               * axis_inertia[p.role_index])
             else:
                 array = arrays[p.quantity]
                 out[p.name] = (array if p.role is None else array[:, p.role_index]).clone()
@@ -394,12 +412,14 @@ class PhysicalParams:
         """The names ``set`` takes: those of ``values`` except the derived ones."""
         return [p.name for p in self.table if p.quantity.settable]
 
-    def set(self, values: dict[str, torch.Tensor]):
+    def set(self, values: dict[str, torch.Tensor]) -> bool:
         """Copy (N,) tensors in SI units into the named parameters (ValueError for an unknown name or a value out of
-        range); the caller writes them into the model."""
+        range); the caller writes them into the model. Whether the step applies joint friction from now on and did
+        not before (``applies_friction``)."""
         import torch
 
         arrays, table = self._arrays(), {p.name: p for p in self.table if p.quantity.settable}
+        newly = False
         for name, value in values.items():
             if name not in table:
                 raise ValueError(f"unknown physical parameter {name!r}; settable: {', '.join(table)}")
@@ -414,6 +434,9 @@ class PhysicalParams:
                                  f"{self.cfg.action_delay_steps} (the action history the env keeps)")
             array = arrays[p.quantity]
             (array if p.role is None else array[:, p.role_index]).copy_(value)
+            newly |= p.quantity is FRICTION and not self.applies_friction and bool((value != 0).any())
+        self.applies_friction |= newly
+        return newly
 
 
 @wp.func

@@ -64,10 +64,16 @@ class Scene:
     joint_f."""
     role_joints: list[int]
     """For each joint role, the index of its joint in env 0 (the same inside every env's block)."""
+    held_dofs: wp.array | None = None
+    """The DOFs (inside one env's block) of the held joints (``sim.held_joints``), or None."""
 
     def simulate(self, physics_dt: float, steps: int, before_step: Callable[[], None] | None = None):
-        """Advance every env ``steps`` physics steps, calling ``before_step`` before each; the result ends in
-        ``state_0`` (graph-capturable)."""
+        """Advance every env ``steps`` physics steps, calling ``before_step`` before each (the held joints' velocities
+        zeroed first); the result ends in ``state_0`` (graph-capturable)."""
+        if self.held_dofs is not None:
+            wp.launch(hold_still, dim=(self.num_envs, self.held_dofs.shape[0]),
+                      inputs=[self.dofs_per_env, self.held_dofs], outputs=[self.state_0.joint_qd],
+                      device=self.model.device)
         for _ in range(steps):
             if before_step is not None:
                 before_step()
@@ -76,6 +82,30 @@ class Scene:
         if steps % 2 == 1:
             self.state_1.assign(self.state_0)
             self.state_0, self.state_1 = self.state_1, self.state_0
+
+
+@wp.kernel(enable_backward=False)
+def hold_still(dofs_per_env: int, held_dofs: wp.array(dtype=int), joint_qd: wp.array(dtype=float)):
+    """Zero the velocity of each env's held DOFs (one thread per env and held DOF)."""
+    env, k = wp.tid()
+    joint_qd[env * dofs_per_env + held_dofs[k]] = 0.0
+
+
+def hold(robot: newton.ModelBuilder, role_joints: list[int], joints: list[JointRole], held: list[str]) -> list[int]:
+    """Make the bodies of the ``held`` roles' joints kinematic in ``robot``; their joints' DOFs (ConfigError for a
+    role the task does not have)."""
+    import newton
+
+    roles = [joint.role for joint in joints]
+    unknown = [role for role in held if role not in roles]
+    if unknown:
+        raise ConfigError(f"sim.held_joints: unknown joint roles {unknown}; this task's roles: {', '.join(roles)}")
+    dofs = []
+    for role in held:
+        joint = role_joints[roles.index(role)]
+        robot.body_flags[robot.joint_child[joint]] = int(newton.BodyFlags.KINEMATIC)
+        dofs.append(robot.joint_qd_start[joint])
+    return dofs
 
 
 def check_units(path: Path):
@@ -196,6 +226,7 @@ def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints:
     init_warp()
     set_gradients(sim.solver, sim.gradients)
     robot, role_joints = load_robot(stage, joints)
+    held_dofs = hold(robot, role_joints, joints, sim.held_joints)
     builder = newton.ModelBuilder()
     try:
         builder.replicate(robot, copy_count=num_envs)
@@ -214,10 +245,12 @@ def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints:
         bodies_per_env=robot.body_count,
         role_dofs=[robot.joint_qd_start[index] for index in role_joints],
         role_joints=role_joints,
+        held_dofs=wp.array(held_dofs, dtype=int, device=model.device) if held_dofs else None,
     )
     if model.device.is_cuda:
         # The solver allocates its scratch arrays on its first step. Inside a CUDA graph capture that memory would be
         # the graph's, unusable by other graphs or launches until the graph has replayed (an illegal memory access):
-        # take the first steps here, a whole env step so that the mass-matrix schedule keeps its phase.
-        scene.simulate(sim.physics_dt, sim.decimation)
+        # take the first steps here, two whole env steps: the mass-matrix schedule keeps its phase, and an even count
+        # leaves the states unswapped (a state that takes gradients holds scratch the other lacks: no assign).
+        scene.simulate(sim.physics_dt, 2 * sim.decimation)
     return scene

@@ -34,7 +34,17 @@ import warp as wp
 
 from ..engine.env import BatchedEnv
 from ..engine.kernels import END_DIVERGED, END_NONE, END_TIME_LIMIT, TaskFunctions, constants_of, kernel_constants
-from ..engine.parameters import ACTUATOR_SCALE, COM, DAMPING, FRICTION, GRAVITY, MASS, Quantity, of_quantity
+from ..engine.parameters import (
+    ACTUATOR_SCALE,
+    COM,
+    DAMPING,
+    FRICTION,
+    GRAVITY,
+    INERTIA_SCALE,
+    MASS,
+    Quantity,
+    of_quantity,
+)
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_friction, write_env
 from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
@@ -298,9 +308,10 @@ class PhysicsFunction(torch.autograd.Function):
     token, is an input of every step, so that its backward runs after theirs (whose tapes add to the model's grads)."""
 
     @staticmethod
-    def forward(ctx, rollout, mass, com, damping, friction, actuator_scale, gravity):
+    def forward(ctx, rollout, mass, inertia_scale, com, damping, friction, actuator_scale, gravity):
         ctx.rollout, ctx.call = rollout, rollout.calls
-        for array, tensor in zip(rollout.physics_arrays, (mass, com, damping, friction, actuator_scale, gravity)):
+        for array, tensor in zip(rollout.physics_arrays, (mass, inertia_scale, com, damping, friction, actuator_scale,
+                                                          gravity)):
             as_warp(array, tensor)
         with rollout.order:
             rollout.physics_tape.forward()
@@ -418,19 +429,22 @@ class DifferentiableRollout:
         self.parameter_table = env.physics.table
         self.parameter_names = [p.name for p in self.parameter_table if p.quantity.differentiable]
         """The physical parameters a rollout takes (``stage_params``' names; ``engine.parameters``' differentiable
-        ones): per joint role its body's mass and centre of mass, the joint's damping and friction; the actuator
-        scale and gravity."""
+        ones): per joint role its body's mass, inertia scale and centre of mass, the joint's damping and friction;
+        the actuator scale and gravity."""
 
     def _make_physics(self):
         """The physical parameters' arrays (with gradients), their struct for the kernels, and the model's fields
         that they are written into."""
         n, roles, dev = self.num_envs, self.num_joints, self.device
-        self.mass, self.com, self.damping, self.friction = (zeros((n, roles), dev) for _ in range(4))
+        self.mass, self.inertia_scale, self.com, self.damping, self.friction = (zeros((n, roles), dev)
+                                                                                for _ in range(5))
         self.actuator_scale, self.gravity = zeros((n,), dev), zeros((n,), dev)
-        self.physics_arrays = (self.mass, self.com, self.damping, self.friction, self.actuator_scale, self.gravity)
+        self.physics_arrays = (self.mass, self.inertia_scale, self.com, self.damping, self.friction,
+                               self.actuator_scale, self.gravity)
         self.env_physics = EnvPhysics()
         p = self.env_physics
-        p.mass, p.com, p.damping, p.friction = self.mass, self.com, self.damping, self.friction
+        p.mass, p.inertia_scale, p.com = self.mass, self.inertia_scale, self.com
+        p.damping, p.friction = self.damping, self.friction
         p.actuator_scale, p.gravity, p.delay = self.actuator_scale, self.gravity, wp.zeros(n, dtype=wp.int32,
                                                                                            device=dev)
         m, fields = self.model, ModelFields()
@@ -464,8 +478,8 @@ class DifferentiableRollout:
         def per_role(quantity: Quantity) -> torch.Tensor:
             return torch.stack([full[p.name] for p in of_quantity(self.parameter_table, quantity)], dim=1)
 
-        return [per_role(MASS), per_role(COM), per_role(DAMPING), per_role(FRICTION), full[ACTUATOR_SCALE.key],
-                full[GRAVITY.key]]
+        return [per_role(MASS), per_role(INERTIA_SCALE), per_role(COM), per_role(DAMPING), per_role(FRICTION),
+                full[ACTUATOR_SCALE.key], full[GRAVITY.key]]
 
     def __call__(self, q0: torch.Tensor, qd0: torch.Tensor, actions: torch.Tensor | None = None,
                  policy: Callable[[torch.Tensor], torch.Tensor] | None = None,

@@ -23,6 +23,8 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import pydantic
 
+from .files import data_path
+
 Solver = Literal["featherstone", "mujoco"]
 """Newton solvers: ``SolverFeatherstone`` or ``SolverMuJoCo`` (on mujoco-warp)."""
 Capture = Literal["auto", "on", "off"]
@@ -112,8 +114,21 @@ class SimConfig:
     """SolverFeatherstone recomputes the joint-space mass matrix every this many physics steps; must divide
     decimation (the captured step replays the choice)."""
     stage_path: Name | None = None
-    """USD stage holding the robot's articulation (metres, kilograms; any up axis and prim names); None: the task's
-    own stage (an empty path is refused)."""
+    """USD stage holding the robot's articulation (metres, kilograms; any up axis and prim names): a path, or the name
+    of a stage in the package's usd/ folder (``multiarm_pendulum.usda``); None: the task's own stage (an empty path is
+    refused)."""
+
+    @property
+    def stage_file(self) -> Path | None:
+        """``stage_path`` as a file: the path where one is there, else the package's stage of that name."""
+        if self.stage_path is None or Path(self.stage_path).exists():
+            return None if self.stage_path is None else Path(self.stage_path)
+        packaged = data_path("usd", self.stage_path)
+        return packaged if packaged.is_file() else Path(self.stage_path)
+    held_joints: list[Name] = field(default_factory=list)
+    """Joint roles held still, as a clamp holds a rig's cart: the body the role's joint moves is kinematic (Newton's
+    ``BodyFlags.KINEMATIC``: SolverFeatherstone gives its joint no acceleration and keeps its position, whatever the
+    forces on it), and its velocity is zeroed before each env step's physics. SolverFeatherstone only."""
     capture: Capture = "auto"
     """Graph capture of the env step: 'auto' (captured on every device: replaying a graph beats launching each kernel,
     on the CPU too; docs/benchmarks.md), 'on' or 'off'."""
@@ -197,6 +212,9 @@ class RandomizationConfig:
     every ``reset()``."""
     mass_scale: dict[str, Range] = field(default_factory=dict)
     """Per role: factor on the mass of the role's body, and on its inertia (same shape, other density)."""
+    inertia_scale: dict[str, Range] = field(default_factory=dict)
+    """Per role: a further factor on the body's inertia about its centre of mass (another shape at the same mass;
+    ``mass_scale``'s factor applies too)."""
     com_offset_m: dict[str, Range] = field(default_factory=dict)
     """Per role: shift (m) of the body's centre of mass along the line from its joint to it (the inertia about the
     centre of mass stays; the inertia about the joint follows)."""
@@ -222,12 +240,14 @@ class RandomizationConfig:
 
     def validate(self, roles: tuple[str, ...]) -> None:
         """ConfigError for a range with low > high, out of its bounds, or keyed by a role the task does not have."""
-        per_role = {"mass_scale": 0.0, "com_offset_m": None, "joint_damping": 0.0, "joint_friction": 0.0}
+        per_role = {"mass_scale": 0.0, "inertia_scale": 0.0, "com_offset_m": None, "joint_damping": 0.0,
+                    "joint_friction": 0.0}
         for name, low_bound in per_role.items():
             for role, bounds in getattr(self, name).items():
                 require(role in roles, f"randomization.{name}: unknown joint role {role!r}; this task's roles: "
                                        f"{', '.join(roles)}")
-                check_range(f"randomization.{name}.{role}", bounds, low_bound, strict=name == "mass_scale")
+                check_range(f"randomization.{name}.{role}", bounds, low_bound,
+                            strict=name in ("mass_scale", "inertia_scale"))
         for name in ("actuator_scale", "gravity_m_s2"):
             if getattr(self, name) is not None:
                 check_range(f"randomization.{name}", getattr(self, name), 0.0, strict=False)
@@ -298,8 +318,8 @@ class EnvConfig(Generic[TaskT]):
         range are checked where dicts become configs (``from_dict``); the checks here relate fields."""
         sim, limit_s = self.sim, self.task.episode_length_s
         check_device_name(self.device)
-        if sim.stage_path is not None and not Path(sim.stage_path).is_file():
-            raise StageError(f"USD stage {'is a folder' if Path(sim.stage_path).is_dir() else 'not found'}: "
+        if sim.stage_file is not None and not sim.stage_file.is_file():
+            raise StageError(f"USD stage {'is a folder' if sim.stage_file.is_dir() else 'not found'}: "
                              f"{sim.stage_path}")
         require(self.num_envs <= MAX_NUM_ENVS,
                 f"num_envs={self.num_envs:,} would need about {self.num_envs * BYTES_PER_ENV / 1e9:,.0f} GB "
@@ -308,6 +328,8 @@ class EnvConfig(Generic[TaskT]):
         require(history < 2**31, f"randomization.action_delay_steps={self.randomization.action_delay_steps} with "
                                  f"num_envs={self.num_envs:,} is an action history of {history:,} entries "
                                  f"(~{history * 4 / 1e9:,.1f} GB per action); Warp's arrays hold at most 2**31 - 1")
+        require(not sim.held_joints or sim.solver == "featherstone",
+                f"sim.held_joints={sim.held_joints} needs sim.solver='featherstone' (its kinematic bodies)")
         require(sim.decimation % sim.mass_matrix_interval == 0,
                 f"sim.mass_matrix_interval={sim.mass_matrix_interval} must divide sim.decimation={sim.decimation}")
         if limit_s is not None:
