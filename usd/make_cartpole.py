@@ -156,6 +156,24 @@ class Cartpole:
     """Poles in a chain, each ``pole_spacing_m`` above the one below (its hinge at the other's top)."""
     pole_spacing_m: float = 1.0
     """From one pole's hinge to the next one's (m), along the pole."""
+    arms: tuple = ()
+    """Poles that differ (``Arm``s, from the cart up), in place of ``num_poles`` copies of ``pole``."""
+
+    def chain(self) -> tuple:
+        """The poles from the cart up, as ``Arm``s."""
+        return self.arms or (Arm(self.pole, self.pole_mass_kg, self.pole_com_above_hinge_m, self.pole_spacing_m),
+                             ) * self.num_poles
+
+
+@dataclass(frozen=True)
+class Arm:
+    """One pole of a chain: its shape (centred on its centre of mass), mass, centre of mass above its hinge and the
+    distance from its hinge to the next pole's (m)."""
+
+    shape: Box | Capsule
+    mass_kg: float
+    com_above_hinge_m: float
+    spacing_m: float
 
 
 CLASSIC = Cartpole(rail=Box(RAIL_SIZE_M), cart=Box(CART_SIZE_M), cart_mass_kg=CART_MASS_KG, pole=Box(POLE_SIZE_M),
@@ -169,6 +187,41 @@ DMC = Cartpole(rail=Box(DMC_RAIL_SIZE_M), cart=Box(DMC_CART_SIZE_M), cart_mass_k
                cart_limit_stiffness_n_m=DMC_LIMIT_STIFFNESS_N_M,
                cart_limit_damping_n_s_m=2.0 * math.sqrt(DMC_LIMIT_STIFFNESS_N_M
                                                         * (DMC_CART_MASS_KG + DMC_POLE_MASS_KG)))
+
+
+MULTIARM_ARM_SECTION_M = (0.0127, 0.03175)
+"""The multi-arm pendulum's arms (Kaheman et al. 2022, dynamicslab/MultiArm-Pendulum, ``CAD Files/Drawing/Arm1.pdf``):
+a machined U-channel of 12.7 mm along the hinge's axis by 31.75 mm across, drawn here as a solid box of that section
+(the stage's inertia: a shape that the fit's inertia scale corrects)."""
+MULTIARM_ARM1_SPACING_M = 0.17272
+"""Arm 1 from its hinge on the cart to arm 2's (``Arm1.pdf``, 6.80 in)."""
+MULTIARM_ARM1_LENGTH_M = 0.220
+"""Arm 1 overall (``Arm1.pdf``, 219.999 mm): its hubs reach equally beyond both hinges."""
+MULTIARM_ARM2_SPACING_M = 0.2286
+"""Arm 2 from its hinge to arm 3's (``Arm2.pdf``, 9.00 in)."""
+MULTIARM_ARM2_LENGTH_M = 0.27588
+"""Arm 2 overall (``Arm2.pdf``, 10.8614 in)."""
+MULTIARM_MASSES_KG = {"single": 0.147585, "double": (0.093844, 0.137596)}
+"""The arms' masses: the repository's estimates (``EstimatedParameters_SinglePendulum.mat``,
+``EstimatedParameters_DoublePendulum.mat``), which no drawing states. A free swing cannot tell them (scaling every
+mass and inertia with the friction moves nothing): they fix that scale, and the fit finds the rest."""
+MULTIARM_COLORS = {"rail": (0.35, 0.35, 0.38), "cart": (0.2, 0.2, 0.22), "pole": (0.75, 0.75, 0.78)}
+
+
+def multiarm_arm(length_m: float, spacing_m: float, mass_kg: float) -> Arm:
+    """An arm as a box of the channel's section and its overall length, centred between its hinges."""
+    return Arm(Box((*MULTIARM_ARM_SECTION_M, length_m)), mass_kg, spacing_m / 2, spacing_m)
+
+
+MULTIARM_SINGLE_ARM = multiarm_arm(MULTIARM_ARM1_LENGTH_M, MULTIARM_ARM1_SPACING_M, MULTIARM_MASSES_KG["single"])
+MULTIARM_DOUBLE_ARMS = (multiarm_arm(MULTIARM_ARM1_LENGTH_M, MULTIARM_ARM1_SPACING_M, MULTIARM_MASSES_KG["double"][0]),
+                        multiarm_arm(MULTIARM_ARM2_LENGTH_M, MULTIARM_ARM2_SPACING_M, MULTIARM_MASSES_KG["double"][1]))
+MULTIARM = Cartpole(rail=Box((0.03, 1.2, 0.03)), cart=Box((0.1, 0.12, 0.05)), cart_mass_kg=1.0,
+                    pole=MULTIARM_SINGLE_ARM.shape, pole_mass_kg=MULTIARM_SINGLE_ARM.mass_kg,
+                    pole_com_above_hinge_m=MULTIARM_SINGLE_ARM.com_above_hinge_m, hinge_offset_from_cart_m=0.0,
+                    cart_travel_limit_m=0.5, colors=MULTIARM_COLORS)
+"""The multi-arm pendulum on its cart. The cart and its rail stand in for the rig's (no drawing gives the cart's
+mass): the recordings here hold the cart still (``sim.held_joints``), where they do not enter."""
 
 
 def _body(stage, path, translate, shape, shape_center, mass_kg, color):
@@ -205,9 +258,12 @@ def build_stage(spec: Cartpole = CLASSIC):
     hinge = (spec.hinge_offset_from_cart_m, 0, 0)
     rail = _body(stage, "/cartpole/rail", (0, 0, 0), spec.rail, (0, 0, 0), RAIL_MASS_KG, spec.colors["rail"])
     cart = _body(stage, "/cartpole/cart", (0, 0, 0), spec.cart, (0, 0, 0), spec.cart_mass_kg, spec.colors["cart"])
-    poles = [_body(stage, f"/cartpole/{pole_name(k)}", (hinge[0], 0, (k - 1) * spec.pole_spacing_m), spec.pole,
-                   (0, 0, spec.pole_com_above_hinge_m), spec.pole_mass_kg, spec.colors["pole"])
-             for k in range(1, spec.num_poles + 1)]
+    arms, heights = spec.chain(), [0.0]
+    for arm in arms:
+        heights.append(heights[-1] + arm.spacing_m)
+    poles = [_body(stage, f"/cartpole/{pole_name(k)}", (hinge[0], 0, heights[k - 1]), arm.shape,
+                   (0, 0, arm.com_above_hinge_m), arm.mass_kg, spec.colors["pole"])
+             for k, arm in enumerate(arms, start=1)]
 
     fixed = UsdPhysics.FixedJoint.Define(stage, "/cartpole/railJoint")
     fixed.CreateBody1Rel().SetTargets([rail.GetPath()])
@@ -229,7 +285,8 @@ def build_stage(spec: Cartpole = CLASSIC):
         pole_joint.CreateBody0Rel().SetTargets([parent.GetPath()])
         pole_joint.CreateBody1Rel().SetTargets([pole.GetPath()])
         pole_joint.CreateAxisAttr(UsdPhysics.Tokens.x)
-        pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge) if k == 1 else Gf.Vec3f(0.0, 0.0, spec.pole_spacing_m))
+        below = arms[k - 2].spacing_m if k > 1 else 0.0
+        pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge) if k == 1 else Gf.Vec3f(0.0, 0.0, below))
         pole_joint.CreateLocalPos1Attr(Gf.Vec3f(0.0, 0.0, 0.0))
     return stage
 
@@ -254,11 +311,21 @@ CHAINS = (2, 3)
 """The pole counts of the chain stages (``cartpole_dmc_<n>poles.usda``)."""
 
 
+def multiarm_stage_text(num_arms: int):
+    """The multi-arm pendulum rig's stage with its first ``num_arms`` arms (1: the single pendulum's arm 1 and its
+    masses, 2: the double pendulum's arms 1 and 2) as USDA text, exactly as ``main`` writes it."""
+    arms = (MULTIARM_SINGLE_ARM,) if num_arms == 1 else MULTIARM_DOUBLE_ARMS
+    return stage_text(dataclasses.replace(MULTIARM, arms=arms))
+
+
 def main():
     here = Path(__file__).parent
-    outs = [Path(arg) for arg in sys.argv[1:3]] or [here / "cartpole.usda", here / "cartpole_dmc.usda",
-                                                    *(here / f"cartpole_dmc_{n}poles.usda" for n in CHAINS)]
-    for out, text in zip(outs, (stage_text(), dmc_stage_text(), *(dmc_stage_text(n) for n in CHAINS))):
+    outs = [Path(arg) for arg in sys.argv[1:3]] or [
+        here / "cartpole.usda", here / "cartpole_dmc.usda", *(here / f"cartpole_dmc_{n}poles.usda" for n in CHAINS),
+        here / "multiarm_pendulum.usda", here / "multiarm_pendulum_2arms.usda"]
+    texts = (stage_text(), dmc_stage_text(), *(dmc_stage_text(n) for n in CHAINS), multiarm_stage_text(1),
+             multiarm_stage_text(2))
+    for out, text in zip(outs, texts):
         out.write_text(text)
         print(f"wrote {out}")
 
