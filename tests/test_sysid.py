@@ -42,7 +42,7 @@ def record(path, seconds: float = 4.0, noise: float = 0.0, push_s: float = 0.0) 
 def test_the_fit_recovers_hidden_masses_and_centre_of_mass_and_its_preset_trains_on_them(tmp_path):
     path = tmp_path / "rig.csv"
     record(path)
-    args = sysid.SysidArgs(trajectory=path, task="cartpole-swingup", fit=list(HIDDEN), window_steps=20, guesses=2,
+    args = sysid.SysidArgs(trajectory=path, task="cartpole-swingup", fit=list(HIDDEN), window_steps=[20], guesses=2,
                            iterations=12, output=tmp_path / "fit")
     result = sysid.fit(args)
     for name, value in HIDDEN.items():
@@ -86,7 +86,7 @@ def test_windows_against_the_rails_stop_are_left_out_and_the_fit_stays_exact(tmp
     path = tmp_path / "rig.npz"
     recording = record(path, seconds=5.5, push_s=1.5)
     assert recording.q[:, 0].max() > 1.75, "the cart reached its stop"
-    result = sysid.fit(sysid.SysidArgs(trajectory=path, task="cartpole-swingup", fit=list(HIDDEN), window_steps=20,
+    result = sysid.fit(sysid.SysidArgs(trajectory=path, task="cartpole-swingup", fit=list(HIDDEN), window_steps=[20],
                                        guesses=2, iterations=12, output=tmp_path / "fit"))
     assert "rows lie within 2% of a joint's range of its limit" in capsys.readouterr().out
     near_stop = np.abs(recording.q[:, 0]) > 1.8 - 0.02 * 3.6
@@ -101,7 +101,7 @@ def test_noisy_positions_give_standard_errors_that_cover_the_fit(tmp_path):
     """1% noise on the positions: each parameter's fit lies within three of its standard errors of the truth."""
     path = tmp_path / "rig.npz"
     record(path, seconds=6.0, noise=0.01)
-    result = sysid.fit(sysid.SysidArgs(trajectory=path, task="cartpole-swingup", fit=list(HIDDEN), window_steps=50,
+    result = sysid.fit(sysid.SysidArgs(trajectory=path, task="cartpole-swingup", fit=list(HIDDEN), window_steps=[50],
                                        guesses=2, iterations=30, output=tmp_path / "fit"))
     for name, value in HIDDEN.items():
         assert abs(result["fitted"][name] - value) < 3 * result["standard_error"][name], name
@@ -136,7 +136,7 @@ def test_the_recording_format_reads_back_and_names_what_is_missing(tmp_path):
             read_trajectory(tmp_path / f"{name}.csv", env.joint_roles, env.physics.sliders, 1)
     short = write_trajectory(tmp_path / "short.npz", recording, env.joint_roles, env.physics.sliders)
     with pytest.raises(ConfigError, match="no stretch of 21 rows inside one episode"):
-        sysid.fit(sysid.SysidArgs(trajectory=short, task="cartpole-balance", window_steps=20, output=tmp_path / "f"))
+        sysid.fit(sysid.SysidArgs(trajectory=short, task="cartpole-balance", window_steps=[20], output=tmp_path / "f"))
 
 
 def test_plays_multisine_and_random_agents_record_what_they_played(tmp_path, run_main):

@@ -15,8 +15,8 @@ Multiple shooting: the recording is cut into windows of ``--window-steps`` env s
 initial state (fitted too, starting from the recorded positions and the recorded or differenced velocities), so that
 errors do not compound through a chaotic trajectory. Every window of every starting guess is one env of one batched,
 differentiable rollout: ``--guesses`` guesses, each parameter drawn log-uniformly within ``--spread`` of the stage's
-value, fitted at once by Levenberg-Marquardt on the parameters (the log of those the stage sets, the others in SI
-units, kept >= 0) and every window's start (the gradient
+value, fitted at once by Levenberg-Marquardt on the parameters (the log of those the stage sets; a damping or a
+friction, 0 on the stage, in 1% of its joint's natural unit, kept >= 0) and every window's start (the gradient
 through the simulator's adjoints, the Jacobian by forward differences of the batched rollout, the windows' starts
 eliminated per window). The guess that fits best is printed against the stage's
 values with the residual, plotted (recorded against simulated positions, PNG) and written as a preset whose
@@ -33,6 +33,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -40,11 +41,11 @@ import yaml
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
-from ..engine.parameters import ACTUATOR_SCALE, COM, GRAVITY, Parameter, of_quantity
+from ..engine.parameters import ACTUATOR_SCALE, COM, DAMPING, FRICTION, GRAVITY, Parameter, of_quantity
 from ..engine.scene import StageError
 from ..evaluation.trajectories import Recording, column_names, read_trajectory
 from ..gradients.rollout import DifferentiableRollout, Trajectory
-from ..settings.config import ConfigError, require
+from ..settings.config import ConfigError, merge, require
 from ..settings.files import write_text
 
 NOT_FITTED_BY_DEFAULT = (ACTUATOR_SCALE.key, GRAVITY.key)
@@ -65,9 +66,13 @@ LIMIT_MARGIN = 0.02
 of its limits are in no window."""
 NO_LIMIT = 1e6
 """A joint limit at or beyond this (m or rad) is none."""
-ZERO_START = 0.01
-"""Guesses draw a parameter the stage leaves at 0 (damping, friction) within this many SI units of 0, times
-``--spread``."""
+HELD_STILL = 1e-6
+"""A held joint's recorded position may vary by at most this (m or rad) within an episode."""
+RATE_TOLERANCE = 1e-6
+"""Relative tolerance of the recording's row interval against a whole number of physics steps, and of each row's
+interval against the recording's."""
+NATURAL_FRACTION = 0.01
+"""A damping's or a friction's unit in the fit: this fraction of its joint's natural one (``natural_units``)."""
 
 
 @dataclass
@@ -78,10 +83,20 @@ class SysidArgs:
     """The recording: a CSV with a header row or an NPZ (columns in the module docstring)."""
     task: str = tasks.DEFAULT_TASK
     """The registered state task whose stage and joints the recording is of."""
+    config: str | None = None
+    """A preset (a name under configs/ or a YAML path) whose env settings the fit's envs take: a rig's own stage
+    (``sim.stage_path``), joints held still (``sim.held_joints``), its physics step. The preset written keeps them."""
+    validate: list[Path] = field(default_factory=list)
+    """Recordings of the same rig held out of the fit: each of their episodes, like each of the fitted recording's,
+    is simulated from its first row over its whole length with the fitted physics (the report's prediction table)."""
     fit: list[str] = field(default_factory=list)
     """Parameters to fit (names as printed); default: every mass, centre of mass, joint damping and friction."""
-    window_steps: int = 20
-    """Env steps of each shooting window."""
+    window_steps: list[int] = field(default_factory=lambda: [20])
+    """Env steps of each shooting window; several: a fit with each in turn, each from the last one's result (short
+    windows find the motion's frequencies from a poor start, longer ones then see what accumulates, such as
+    dissipation)."""
+    window_stride: int = 1
+    """Fit every this-many-th window (1: every one): a long recording's windows thinned."""
     guesses: int = 8
     """Starting guesses fitted at once (one batch of envs each)."""
     spread: float = 0.5
@@ -154,43 +169,100 @@ class Problem:
     """What a fit reads before it builds its envs: the recording, its windows and the parameters to fit."""
 
     recording: Recording
-    starts: list[int]
-    """The windows' first rows."""
+    usable: np.ndarray
+    """(rows,) bool: the rows a window may hold (clear of the joints' limits)."""
     names: list[str]
     """The parameters fitted."""
     stage: dict[str, float]
     """Every settable parameter's value on the stage (SI units)."""
+    units: dict[str, float]
+    """Each fitted parameter's unit in the fit: its stage value, or where that is 0 (a damping, a friction)
+    ``NATURAL_FRACTION`` of its joint's natural one."""
     roles: tuple[str, ...]
     sliders: list[bool]
     table: tuple[Parameter, ...]
     """The task's physical parameters (``engine.parameters``)."""
     dt: float
-    """The task's control period (s)."""
+    """The recording's row interval (s): the fit's env step."""
+    sim: dict
+    """The fit's ``sim`` settings beyond the task's and the preset's: as many physics steps per env step as fit in
+    ``dt``."""
+    held: list[bool]
+    """Per role: whether the rig holds its joint still (``sim.held_joints``)."""
 
 
 def read_problem(args: SysidArgs) -> Problem:
     """The recording of ``args.trajectory`` checked against the task (ConfigError in one line), cut into windows, and
     the parameters to fit."""
-    probe = tasks.get(args.task).env_class(tasks.env_config(args.task, num_envs=1, device=args.device))
+    probe = tasks.get(args.task).env_class(tasks.env_config(args.task, args.config, num_envs=1, device=args.device))
     require(not probe.sees_images, f"--task {args.task} observes camera frames; identify its state twin's physics")
-    roles, sliders, dt = probe.joint_roles, probe.physics.sliders, probe.cfg.sim.env_dt
+    roles, sliders = probe.joint_roles, probe.physics.sliders
+    held = [role in probe.cfg.sim.held_joints for role in roles]
     recording = read_trajectory(args.trajectory, roles, sliders, probe.num_actions)
-    steps_dt = np.diff(recording.time_s)
-    require(np.allclose(steps_dt[np.diff(recording.episode) == 0], dt, rtol=1e-3, atol=1e-6),
-            f"{args.trajectory}: rows must come every {dt:g} s (the task's control period)")
+    dt, sim = step_settings(args.trajectory, recording, probe.cfg.sim)
+    check_held(args.trajectory, recording, roles, held)
     clear = clear_of_limits(recording, probe)
     if not clear.all():
         print(f"{int((~clear).sum())} rows lie within {LIMIT_MARGIN:.0%} of a joint's range of its limit (the stage's "
               "stop, a stiff spring whose onset a window's start cannot be fitted through): no window holds them")
-    starts = windows(recording, args.window_steps, clear)
-    require(starts, f"{args.trajectory}: no stretch of {args.window_steps + 1} rows inside one episode and clear of "
-                    "the joints' limits")
     table, bodies = probe.physics.table, probe.physics.bodies
     settable = [p.name for p in table if p.quantity.differentiable]
     stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in settable}
     on_joint = [p.name for p in of_quantity(table, COM) if bodies[p.role_index].com_distance == 0.0]
+    names = fitted_names(args.fit, settable, on_joint)
+    natural = natural_units(table, bodies, probe.physics.gravity_m_s2)
+    units = {name: stage[name] if stage[name] > 0 else NATURAL_FRACTION * natural.get(name, 1.0) for name in names}
     probe.close()
-    return Problem(recording, starts, fitted_names(args.fit, settable, on_joint), stage, roles, sliders, table, dt)
+    return Problem(recording, clear, names, stage, units, roles, sliders, table, dt, sim, held)
+
+
+def natural_units(table: tuple[Parameter, ...], bodies: list, gravity_m_s2: float) -> dict[str, float]:
+    """Each joint's damping and friction in its body's own terms: for a hinge the torque of gravity on the body held
+    level, m g d (d: its centre of mass from the hinge, at least 1 cm), and the damping sqrt(J m g d) that takes as
+    much (J: the inertia about the hinge), at the body's own rate sqrt(m g d / J); for a slider the body's weight and
+    that weight per m/s."""
+    units = {}
+    for p in of_quantity(table, DAMPING) + of_quantity(table, FRICTION):
+        body = bodies[p.role_index]
+        weight = body.mass * gravity_m_s2
+        if p.unit in (DAMPING.slider_unit, FRICTION.slider_unit):
+            units[p.name] = weight
+            continue
+        torque = weight * max(body.com_distance, 0.01)
+        inertia = float(body.axis @ body.inertia @ body.axis) + body.mass * body.com_distance**2
+        units[p.name] = torque if p.quantity is FRICTION else math.sqrt(inertia * torque)
+    return units
+
+
+def step_settings(path: Path, recording: Recording, sim) -> tuple[float, dict]:
+    """The recording's row interval (s) and the ``sim`` settings whose env step it is: ``decimation`` physics steps
+    of ``sim.physics_dt`` (ConfigError in one line where rows are uneven or the physics step does not divide them)."""
+    same_episode = np.diff(recording.episode) == 0
+    require(same_episode.any(), f"{path}: no episode of two rows or more")
+    intervals = np.diff(recording.time_s)[same_episode]
+    dt = float(np.median(intervals))
+    require(np.allclose(intervals, dt, rtol=RATE_TOLERANCE * 1e3, atol=0.0),
+            f"{path}: rows must come at one rate; their intervals range over {intervals.min():g}-{intervals.max():g} s")
+    decimation = round(dt / sim.physics_dt)
+    require(decimation >= 1 and abs(decimation * sim.physics_dt - dt) <= RATE_TOLERANCE * dt,
+            f"{path}: rows every {dt:g} s, which the physics step sim.physics_dt={sim.physics_dt:g} s does not divide; "
+            f"set a physics step that does (e.g. --config with sim.physics_dt: {dt / max(decimation, 1):g})")
+    interval = sim.mass_matrix_interval if decimation % sim.mass_matrix_interval == 0 else 1
+    return dt, {"decimation": decimation, "mass_matrix_interval": interval}
+
+
+def check_held(path: Path, recording: Recording, roles: tuple[str, ...], held: list[bool]):
+    """ConfigError where a joint the rig holds still (``sim.held_joints``) moves in the recording."""
+    for j, role in enumerate(roles):
+        if not held[j]:
+            continue
+        for episode in np.unique(recording.episode):
+            rows = recording.episode == episode
+            moved = float(np.ptp(recording.q[rows, j]))
+            speed = float(np.nanmax(np.abs(recording.qd[rows, j]), initial=0.0))
+            require(moved <= HELD_STILL and speed <= HELD_STILL,
+                    f"{path}: the {role} joint moves in the recording (by {moved:g}, at up to {speed:g} per s) but "
+                    f"sim.held_joints holds it still: fit a recording made with it held, or a preset that frees it")
 
 
 def fitted_names(chosen: list[str], settable: list[str], on_joint: list[str]) -> list[str]:
@@ -208,29 +280,38 @@ def fitted_names(chosen: list[str], settable: list[str], on_joint: list[str]) ->
 class WindowFit:
     """The batched fit of a ``Problem``: ``guesses`` x windows envs of one differentiable rollout, each window of each
     guess one env. Per guess the parameters ``theta`` (G, P): a parameter the stage sets (a mass, a centre of mass) as
-    its log over the stage's value, one the stage leaves at 0 (damping, friction) as itself in SI units, kept >= 0;
-    per env its window's start ``starts`` (N, 2 joints), in units of the signals' spread around the recorded one."""
+    its log over the stage's value, one the stage leaves at 0 (damping, friction) in its unit (``Problem.units``),
+    kept >= 0; per env its window's start ``starts`` (N, 2 free joints: those not held), in units of the signals'
+    spread around the recorded one."""
 
-    def __init__(self, problem: Problem, args: SysidArgs):
-        self.problem, self.guesses, self.horizon = problem, args.guesses, args.window_steps
-        self.num_windows, recording, stage = len(problem.starts), problem.recording, problem.stage
+    def __init__(self, problem: Problem, args: SysidArgs, steps: int):
+        self.problem, self.guesses, self.horizon = problem, args.guesses, steps
+        recording, stage = problem.recording, problem.stage
+        self.starts = windows(recording, steps, problem.usable)[::args.window_stride]
+        """The windows' first rows."""
+        require(self.starts, f"{args.trajectory}: no stretch of {steps + 1} rows inside one episode and clear of the "
+                             "joints' limits")
+        self.num_windows = len(self.starts)
         self.num_envs = n = self.guesses * self.num_windows
-        env = tasks.get(args.task).env_class(tasks.env_config(args.task, num_envs=n, device=args.device,
-                                                              sim={"gradients": True}))
+        env = tasks.get(args.task).env_class(tasks.env_config(args.task, args.config, num_envs=n, device=args.device,
+                                                              sim={"gradients": True, **problem.sim}))
         self.rollout = DifferentiableRollout(env, self.horizon)
         self.device = device = self.rollout.device
-        rows = np.array(problem.starts)[:, None] + np.arange(self.horizon + 1)[None, :]  # (windows, H + 1)
+        rows = np.array(self.starts)[:, None] + np.arange(self.horizon + 1)[None, :]  # (windows, H + 1)
         tensor = lambda x: torch.as_tensor(x, dtype=torch.float32, device=device)  # noqa: E731
         self.recorded = tensor(recording.q[rows]).repeat(self.guesses, 1, 1)  # (N, H + 1, joints)
         self.actions = tensor(recording.action[rows[:, :-1]]).repeat(self.guesses, 1, 1).transpose(0, 1)  # (H, N, A)
         self.scale = tensor(np.maximum(recording.q.std(axis=0), 1e-3))
         self.hinge = torch.tensor([not s for s in problem.sliders], device=device)
         self.linear = torch.tensor([stage[name] == 0.0 for name in problem.names], device=device)
-        self.base = tensor([stage[name] if stage[name] > 0 else 1.0 for name in problem.names])
+        self.base = tensor([problem.units[name] for name in problem.names])
         estimated = velocities(recording, problem.dt, problem.sliders)
         self.velocity_scale = tensor(np.maximum(estimated.std(axis=0), 1e-3))
         self.qd_start = tensor(estimated[rows[:, 0]]).repeat(self.guesses, 1)
         self.joints = len(problem.roles)
+        free = torch.tensor([not h for h in problem.held], device=device)
+        self.free_columns = torch.cat([free, free]).nonzero().squeeze(1)
+        """The columns of (positions, velocities) that a window's start moves: those of the joints not held."""
         self.guess_of = torch.arange(n, device=device) // self.num_windows
 
     def first_guesses(self, seed: int, spread: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -240,8 +321,8 @@ class WindowFit:
         theta = ((torch.rand((self.guesses, len(self.problem.names)), generator=generator) * 2 - 1)
                  * math.log1p(spread)).to(self.device)
         theta[0] = 0.0
-        theta = torch.where(self.linear, theta.abs() * ZERO_START, theta)
-        return theta, torch.zeros((self.num_envs, 2 * self.joints), device=self.device)
+        theta = torch.where(self.linear, theta.abs(), theta)
+        return theta, torch.zeros((self.num_envs, len(self.free_columns)), device=self.device)
 
     def physical(self, theta: torch.Tensor) -> torch.Tensor:
         """(G, P) parameters (SI) of the fitted variables."""
@@ -252,8 +333,9 @@ class WindowFit:
         """(N, (H + 1) x joints) normalized position errors of every window, and the rollout."""
         values, joints = self.physical(theta), self.joints
         params = {name: values[:, k].repeat_interleave(self.num_windows) for k, name in enumerate(self.problem.names)}
-        q0 = self.recorded[:, 0] + starts[:, :joints] * self.scale
-        qd0 = self.qd_start + starts[:, joints:] * self.velocity_scale
+        moved = torch.zeros((self.num_envs, 2 * joints), device=self.device).index_copy(1, self.free_columns, starts)
+        q0 = self.recorded[:, 0] + moved[:, :joints] * self.scale
+        qd0 = self.qd_start + moved[:, joints:] * self.velocity_scale
         out = self.rollout(q0, qd0, actions=self.actions, params=params)
         return (angle_error(out.q.transpose(0, 1), self.recorded, self.hinge) / self.scale).flatten(1), out
 
@@ -262,18 +344,18 @@ class WindowFit:
         return torch.zeros(self.guesses, device=self.device).index_add_(0, self.guess_of, 0.5 * r.pow(2).sum(dim=1))
 
     def jacobians(self, theta: torch.Tensor, starts: torch.Tensor, r: torch.Tensor):
-        """The Jacobians of the residuals ``r`` by forward differences, (N, K, 2 joints) in each window's start and
-        (N, K, P) in ``theta``: one batched rollout per column (the windows are independent envs)."""
-        step, device, size = JACOBIAN_STEP, self.device, len(self.problem.names)
-        a_cols = [(self.residuals(theta, starts + step * unit(2 * self.joints, j, device))[0] - r) / step
-                  for j in range(2 * self.joints)]
+        """The Jacobians of the residuals ``r`` by forward differences, (N, K, S) in each window's start (S: its
+        columns) and (N, K, P) in ``theta``: one batched rollout per column (the windows are independent envs)."""
+        step, device, size, columns = JACOBIAN_STEP, self.device, len(self.problem.names), starts.shape[1]
+        a_cols = [(self.residuals(theta, starts + step * unit(columns, j, device))[0] - r) / step
+                  for j in range(columns)]
         b_cols = [(self.residuals(theta + step * unit(size, k, device), starts)[0] - r) / step for k in range(size)]
         return torch.stack(a_cols, dim=2), torch.stack(b_cols, dim=2)
 
     def schur(self, a: torch.Tensor, b: torch.Tensor, lam: torch.Tensor, extra: torch.Tensor | None = None):
         """Per window: A'A + lam, A'B, the parameters' normal matrix with the window's start eliminated, and
         (A'A + lam)^-1 [A'B, extra]."""
-        ata = a.transpose(1, 2) @ a + lam[:, None, None] * torch.eye(2 * self.joints, device=self.device)
+        ata = a.transpose(1, 2) @ a + lam[:, None, None] * torch.eye(a.shape[2], device=self.device)
         atb = a.transpose(1, 2) @ b
         solved = torch.linalg.solve(ata, atb if extra is None else torch.cat([atb, extra], dim=2))
         return ata, atb, b.transpose(1, 2) @ b - atb.transpose(1, 2) @ solved[:, :, :atb.shape[2]], solved
@@ -297,6 +379,12 @@ class WindowFit:
             rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
                 0, guess_of, (atb.transpose(1, 2) @ solve_ata[:, :, -1:]).squeeze(2))
             step_theta = -torch.linalg.solve(reduced_normal, rhs)
+            at_bound = self.linear & (theta <= 0.0) & (step_theta < 0.0)  # held at 0: the step solved without them
+            if at_bound.any():
+                free = ~at_bound
+                reduced_normal = torch.where(free[:, :, None] & free[:, None, :], reduced_normal,
+                                             torch.eye(size, device=self.device))
+                step_theta = -torch.linalg.solve(reduced_normal, torch.where(free, rhs, 0.0))
             step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
             trial_theta, trial_starts = theta + step_theta, starts + step_starts.squeeze(2)
             trial_theta = torch.where(self.linear, trial_theta.clamp(min=0.0), trial_theta)
@@ -319,10 +407,10 @@ class WindowFit:
         a, b = self.jacobians(theta, starts, r)
         normal = self.schur(a[best_guess_rows], b[best_guess_rows],
                             torch.zeros(self.num_windows, device=self.device))[2].sum(dim=0)
-        first_rows = self.problem.starts
+        first_rows = self.starts
         shared = sum(later - earlier == self.horizon for earlier, later in zip(first_rows, first_rows[1:]))
         freedom = max(r[best_guess_rows].numel() - shared * self.joints - theta.shape[1]
-                      - self.num_windows * 2 * self.joints, 1)
+                      - self.num_windows * len(self.free_columns), 1)
         variance = 2 * float(losses[best]) / freedom
         # a direction the data do not see (an eigenvalue ~0) gives the parameters along it a huge error, not none
         eigenvalues, vectors = torch.linalg.eigh(normal.double())
@@ -359,27 +447,102 @@ def fit(args: SysidArgs) -> dict:
     """The fit (``SysidArgs``): prints its progress and result, writes the plot, the preset and the result file, and
     returns the result."""
     problem = read_problem(args)
-    fitter = WindowFit(problem, args)
-    theta, starts = fitter.first_guesses(args.seed, args.spread)
-    print(f"{args.task}: {len(problem.recording.time_s)} rows, {fitter.num_windows} windows of {fitter.horizon} steps "
-          f"x {args.guesses} guesses = {fitter.num_envs} envs on {fitter.device}; fitting {', '.join(problem.names)}",
-          flush=True)
     start = time.perf_counter()
-    lm_lambda = torch.full((args.guesses,), INITIAL_LM_LAMBDA, device=fitter.device)
-    for it in range(args.iterations):
-        theta, starts, lm_lambda, best_loss = fitter.step(theta, starts, lm_lambda)
-        print(f"  iteration {it + 1}/{args.iterations}: best loss {best_loss:.3e} "
-              f"({time.perf_counter() - start:.1f} s)", flush=True)
+    fitter, theta, starts = fit_windows(problem, args, start)
     result, equally_good, simulated = fitter.result(args, theta, starts, start)
     report(result, equally_good)
     output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
     labels = column_names(problem.roles, problem.sliders)[0]
-    plot(output / "sysid_fit.png", problem.recording, problem.starts, simulated, problem.dt, labels)
+    plot(output / "sysid_fit.png", problem.recording, fitter.starts, simulated, problem.dt, labels)
+    result["prediction"] = {}
+    for number, path in enumerate([args.trajectory, *args.validate]):
+        recording = problem.recording if number == 0 else read_trajectory(path, problem.roles, problem.sliders,
+                                                                          problem.recording.action.shape[1])
+        if number > 0:
+            check_held(path, recording, problem.roles, problem.held)
+            require(step_settings(path, recording, SimpleNamespace(physics_dt=problem.dt, mass_matrix_interval=1))[1]
+                    ["decimation"] == 1, f"{path}: rows must come every {problem.dt:g} s, as the fitted recording's")
+        simulated, rms = predict(args, problem, result["fitted"], recording)
+        result["prediction"][str(path)] = rms
+        plot(output / f"sysid_prediction_{number}.png", recording, first_rows(recording), simulated, problem.dt,
+             labels)
+    report_prediction(result["prediction"], labels)
     write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
     preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.table)
     print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
           f"(python train.py --task {args.task} --config {preset})")
     return result
+
+
+def fit_windows(problem: Problem, args: SysidArgs, start: float) -> tuple[WindowFit, torch.Tensor, torch.Tensor]:
+    """Levenberg-Marquardt on windows of each of ``args.window_steps`` in turn, each from the last one's parameters
+    (the first from the starting guesses), printing its progress; the last fit, its parameters and windows' starts."""
+    theta = None
+    for steps in args.window_steps:
+        fitter = WindowFit(problem, args, steps)
+        first_theta, starts = fitter.first_guesses(args.seed, args.spread)
+        theta = first_theta if theta is None else theta
+        print(f"{args.task}: {len(problem.recording.time_s)} rows, {fitter.num_windows} windows of {steps} steps x "
+              f"{args.guesses} guesses = {fitter.num_envs} envs on {fitter.device}; fitting "
+              f"{', '.join(problem.names)}", flush=True)
+        lm_lambda = torch.full((args.guesses,), INITIAL_LM_LAMBDA, device=fitter.device)
+        for it in range(args.iterations):
+            theta, starts, lm_lambda, best_loss = fitter.step(theta, starts, lm_lambda)
+            print(f"  iteration {it + 1}/{args.iterations}: best loss {best_loss:.3e} "
+                  f"({time.perf_counter() - start:.1f} s)", flush=True)
+    return fitter, theta, starts
+
+
+def first_rows(recording: Recording) -> list[int]:
+    """The first row of each episode."""
+    return [int(np.flatnonzero(recording.episode == episode)[0]) for episode in np.unique(recording.episode)]
+
+
+@torch.no_grad()
+def predict(args: SysidArgs, problem: Problem, fitted: dict, recording: Recording) -> tuple[np.ndarray, list[dict]]:
+    """Each episode of ``recording`` simulated with the ``fitted`` physics from its first row (recorded positions,
+    recorded or differenced velocities) over its whole length under its recorded actions, one env per episode with
+    no time limit: the positions (rows of the longest, episodes, joints; NaN past an episode's end or its env's end)
+    and per episode its rows and RMS position error per joint (hinges' wrapped to (-pi, pi])."""
+    firsts = first_rows(recording)
+    lengths = [int((recording.episode == recording.episode[first]).sum()) for first in firsts]
+    n, rows = len(firsts), max(lengths)
+    env = tasks.get(args.task).env_class(tasks.env_config(args.task, args.config, num_envs=n, device=args.device,
+                                                          sim=problem.sim, task={"episode_length_s": None}))
+    env.set_physical_params(**{name: torch.full((n,), value, device=env.device) for name, value in fitted.items()})
+    qd = velocities(recording, problem.dt, problem.sliders)
+    state = np.stack([recording.q[firsts], qd[firsts]], axis=2).reshape(n, -1)  # per role: position, velocity
+    env.set_state(torch.as_tensor(state, dtype=torch.float32, device=env.device))
+    index = np.minimum(np.array(firsts)[None, :] + np.arange(rows)[:, None], len(recording.time_s) - 1)
+    actions = torch.as_tensor(recording.action[index], dtype=torch.float32, device=env.device)
+    simulated = np.full((rows, n, len(problem.roles)), np.nan)
+    simulated[0] = recording.q[firsts]
+    alive = np.ones(n, dtype=bool)
+    for t in range(1, rows):
+        _, _, terminated, truncated, _ = env.step(actions[t - 1])
+        alive &= ~(terminated | truncated).cpu().numpy() & (t < np.array(lengths))
+        simulated[t, alive] = env.joint_state()[0].cpu().numpy()[alive]
+    env.close()
+    hinge = torch.tensor([not s for s in problem.sliders])
+    rms = []
+    for e, (first, length) in enumerate(zip(firsts, lengths)):
+        error = angle_error(torch.as_tensor(simulated[:length, e]), torch.as_tensor(recording.q[first:first + length]),
+                            hinge).numpy()
+        predicted = np.isfinite(error).all(axis=1)
+        rms.append({"episode": int(recording.episode[first]), "rows": length, "predicted_rows": int(predicted.sum()),
+                    "rms": [float(np.sqrt(np.mean(error[predicted, j] ** 2))) for j in range(error.shape[1])]})
+    return simulated, rms
+
+
+def report_prediction(prediction: dict, labels: list[str]):
+    """Each recording's episodes, simulated from their first rows: RMS position error per joint."""
+    print("each episode simulated from its first row over its whole length (RMS error):")
+    for path, episodes in prediction.items():
+        print(f"  {path}")
+        for e in episodes:
+            cut = "" if e["predicted_rows"] == e["rows"] else f" (the env ended after {e['predicted_rows']} rows)"
+            print(f"    episode {e['episode']:g}, {e['rows']} rows: "
+                  + ", ".join(f"{label} {value:.4g}" for label, value in zip(labels, e["rms"])) + cut)
 
 
 def report(result: dict, equally_good: int):
@@ -423,18 +586,21 @@ def plot(path: Path, recording: Recording, starts: list[int], simulated: np.ndar
 
 
 def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, table: tuple[Parameter, ...]) -> Path:
-    """A preset whose randomization draws the fitted physics (times 1 -/+ ``args.randomize``) at every reset."""
+    """A preset whose randomization draws the fitted physics (times 1 -/+ ``args.randomize``) at every reset, on
+    ``args.config``'s env settings where it names a preset."""
     low, high = 1.0 - args.randomize, 1.0 + args.randomize
     sections: dict = {}
     for p in (p for p in table if p.name in fitted):
         value, base = fitted[p.name], stage[p.name]
-        bounds = {"scale": [value / base * low, value / base * high],
-                  "offset": [value * low - base, value * high - base]}.get(p.quantity.draw, [value * low, value * high])
+        draw = p.quantity.draw
+        bounds = ([value / base * low, value / base * high] if draw == "scale"
+                  else [value * low - base, value * high - base] if draw == "offset" else [value * low, value * high])
         if p.role is None:
             sections[p.quantity.section] = bounds
         else:
             sections.setdefault(p.quantity.section, {})[p.role] = bounds
-    preset = {"task": args.task, "env": {"randomization": {"at": "reset", **sections}}}
+    base = tasks.preset_overrides(args.task, args.config).get("env", {})
+    preset = {"task": args.task, "env": merge(base, {"randomization": {"at": "reset", **sections}})}
     header = (f"# The physics tools.sysid fitted to {args.trajectory} (task {args.task}); randomization ranges "
               f"{args.randomize:g} around the fit.\n# python train.py --task {args.task} --config {path}\n")
     return write_text(path, header + yaml.safe_dump(preset, sort_keys=False))
@@ -445,8 +611,8 @@ def main(argv: list[str] | None = None) -> int:
     with clean_errors(ConfigError, StageError):
         args = parse(SysidArgs, SysidArgs(), sys.argv[1:] if argv is None else argv, __doc__)
         require(args.trajectory is not None, "--trajectory FILE is required (a CSV or NPZ recording)")
-        require(args.window_steps >= 1 and args.guesses >= 1 and args.iterations >= 1,
-                "--window-steps, --guesses and --iterations must be >= 1")
+        require(min(*args.window_steps, args.window_stride, args.guesses, args.iterations) >= 1,
+                "--window-steps, --window-stride, --guesses and --iterations must be >= 1")
         require(args.spread >= 0 and 0 <= args.randomize < 1, "--spread must be >= 0 and --randomize in [0, 1)")
         fit(args)
     return 0
