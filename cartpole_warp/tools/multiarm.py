@@ -1,0 +1,270 @@
+"""The multi-arm pendulum benchmark (Kaheman, Fasel, Bramburger, Strom, Kutz, Brunton: "The Experimental Multi-Arm
+Pendulum on a Cart: A Benchmark System for Chaos, Learning, and Control", HardwareX 2023, arXiv 2205.06231; data and
+code github.com/dynamicslab/MultiArm-Pendulum, MIT licence): ``tools.sysid`` on a real rig's recordings, against the
+authors' own model.
+
+    git clone https://github.com/dynamicslab/MultiArm-Pendulum
+    python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 1
+    python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 2
+
+The repository's ``ParameterEstimation/<Single|Double>Pendulum/*DataForParameterEstimation.mat`` hold free swings of
+the arms recorded at 1 kHz with the cart held still, cut into segments: ``Y_id`` to fit, ``Y_vad`` to validate (per
+arm its angle and angular velocity, each from upright with pi hanging, the second arm's from upright too). Each
+becomes a recording of this project (``evaluation.trajectories``: one episode per segment, the pole angles relative
+to the body below, the cart at 0, no action), written as ``y_id.npz`` and ``y_vad.npz``. ``tools.sysid`` fits the
+rig's preset (``configs/multiarm_pendulum.yaml``, ``multiarm_double_pendulum.yaml``: the rig's stage, its cart held)
+to ``y_id.npz`` alone, and simulates every segment of both from its first sample over its whole length. The authors'
+model (their ``SinglePendulumODE.m``, ``DoublePendulumODE_Mounted.m`` with their ``EstimatedParameters_*.mat``,
+integrated by scipy's ``solve_ivp``) predicts the same segments; the table gives each one's RMS angle error per arm
+(each arm's angle from upright, as the authors' data give it) for both.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..cli import clean_errors, parse, quiet_libraries
+from ..engine.scene import StageError
+from ..evaluation.trajectories import Recording, write_trajectory
+from ..settings.config import ConfigError, require
+from ..settings.files import write_text
+from . import sysid
+
+SEGMENTS = ("Y_id", "Y_vad")
+"""The data file's segment lists: to fit and to validate on."""
+ODE_TOLERANCE = 1e-9
+"""Relative and absolute tolerance of ``solve_ivp`` on the authors' model (a finer one changes no digit printed)."""
+
+
+@dataclass(frozen=True)
+class Rig:
+    """One configuration of the benchmark: its files in the repository, and the task, preset and parameters fitted."""
+
+    folder: str
+    data: str
+    estimates: str
+    task: str
+    preset: str
+    fit: tuple[str, ...]
+    """What a free swing tells (each arm's mass being the stage's): the inertia about the hinge, through a centre of
+    mass or an inertia scale, the joints' damping and friction."""
+    estimate_names: tuple[str, ...]
+    """The order of the authors' ``EstimatedParameters``."""
+
+
+RIGS = {
+    1: Rig("SinglePendulum", "SinglePendulumDataForParameterEstimation.mat", "EstimatedParameters_SinglePendulum.mat",
+           "cartpole-swingup", "multiarm_pendulum",
+           ("pole_inertia_scale", "pole_damping_n_m_s_rad", "pole_friction_n_m"), ("a1", "m1", "I1", "k1", "g")),
+    2: Rig("DoublePendulum", "DoublePendulumDataForParameterEstimation.mat", "EstimatedParameters_DoublePendulum.mat",
+           "cart-two-pole-swingup", "multiarm_double_pendulum",
+           ("pole_com_m", "pole_inertia_scale", "pole2_inertia_scale", "pole_damping_n_m_s_rad",
+            "pole2_damping_n_m_s_rad", "pole_friction_n_m", "pole2_friction_n_m"),
+           ("m1", "m2", "a1", "a2", "L1", "I1", "I2", "k1", "k2", "g")),
+}
+
+
+@dataclass
+class MultiarmArgs:
+    """Fit the multi-arm pendulum's recordings and compare the prediction with the authors' model (module
+    docstring)."""
+
+    repo: Path | None = None
+    """A clone of github.com/dynamicslab/MultiArm-Pendulum."""
+    arms: int = 1
+    """1: the single pendulum's recordings, 2: the double pendulum's."""
+    output: Path = Path("logs/multiarm")
+    """Folder for the recordings, the fit (``fit/``) and multiarm_result.yaml (one per ``--arms``)."""
+    window_steps: list[int] = field(default_factory=lambda: [100, 1000])
+    """Env steps (1 ms each) of the fit's shooting windows: a fit with each in turn (``tools.sysid``)."""
+    guesses: int = 2
+    """Starting guesses fitted at once."""
+    iterations: int = 7
+    """Levenberg-Marquardt iterations with each window length."""
+    window_stride: int = 4
+    """Fit every this-many-th window of ``Y_id`` (1: all)."""
+    device: str = "cpu"
+    """Where the fit runs: 'cpu' or 'cuda:N'."""
+
+
+def load_mat(path: Path) -> dict:
+    """A MATLAB MAT-file's variables (scipy, the ``sysid`` extra); ConfigError naming a missing file or scipy."""
+    try:
+        from scipy.io import loadmat
+    except ImportError:
+        raise ConfigError("reading MAT-files needs scipy: pip install 'cartpole-warp[sysid]'") from None
+    require(path.is_file(), f"no file {path}: give --repo a clone of github.com/dynamicslab/MultiArm-Pendulum")
+    return loadmat(path)
+
+
+def read_segments(path: Path, arms: int) -> dict[str, Recording]:
+    """The file's ``Y_id`` and ``Y_vad`` as recordings of a cart task with ``arms`` poles (one episode per segment;
+    ConfigError where the file is not the benchmark's)."""
+    data = load_mat(path)
+    missing = [name for name in (*SEGMENTS, "dt") if name not in data]
+    require(not missing, f"{path}: missing {', '.join(missing)}: not the benchmark's DataForParameterEstimation file")
+    dt = float(np.asarray(data["dt"]).reshape(-1)[0])
+    recordings = {}
+    for name in SEGMENTS:
+        segments = [np.asarray(cell, dtype=np.float64) for cell in np.asarray(data[name]).reshape(-1)]
+        require(all(s.ndim == 2 and s.shape[0] == 2 * arms for s in segments),
+                f"{path}: {name}'s segments must have {2 * arms} rows (each arm's angle, then each one's velocity)")
+        recordings[name] = as_recording(segments, dt, arms)
+    return recordings
+
+
+def as_recording(segments: list[np.ndarray], dt: float, arms: int) -> Recording:
+    """Segments of (each arm's angle from upright, then each one's angular velocity) x samples as one recording: the
+    cart at rest at 0, each pole's angle relative to the arm below (the joint's), one episode per segment."""
+    rows = sum(s.shape[1] for s in segments)
+    absolute = np.concatenate([s[:arms].T for s in segments])
+    rates = np.concatenate([s[arms:].T for s in segments])
+    relative = np.diff(absolute, axis=1, prepend=0.0)
+    relative_rates = np.diff(rates, axis=1, prepend=0.0)
+    zeros = np.zeros((rows, 1))
+    return Recording(time_s=np.concatenate([np.arange(s.shape[1]) * dt for s in segments]),
+                     action=zeros, q=np.hstack([zeros, relative]), qd=np.hstack([zeros, relative_rates]),
+                     episode=np.concatenate([np.full(s.shape[1], float(k)) for k, s in enumerate(segments)]))
+
+
+def arm_angles(q: np.ndarray) -> np.ndarray:
+    """Each arm's angle from upright (the benchmark's) from a cart task's joint positions (..., 1 + arms)."""
+    return np.cumsum(q[..., 1:], axis=-1)
+
+
+def single_pendulum(p: dict):
+    """The authors' ``SinglePendulumODE.m``: phi'' = -(k1 phi' - a1 g m1 sin phi) / (m1 a1^2 + I1)."""
+
+    a1, m1, inertia, k1, g = (p[name] for name in RIGS[1].estimate_names)
+
+    def f(_t, y):
+        return [y[1], -(k1 * y[1] - a1 * g * m1 * np.sin(y[0])) / (m1 * a1**2 + inertia)]
+
+    return f
+
+
+def double_pendulum(p: dict):
+    """The authors' ``DoublePendulumODE_Mounted.m`` (state phi1, phi2, phi1', phi2', both from upright), as their
+    symbolic derivation printed it."""
+    m1, m2, a1, a2, L1, I1, I2, k1, k2, g = (p[name] for name in RIGS[2].estimate_names)
+
+    def f(_t, y):
+        p1, p2, w1, w2 = y
+        s12, c12 = np.sin(p1 - p2), np.cos(p1 - p2)
+        den = (I1 * I2 + L1**2 * a2**2 * m2**2 + I2 * L1**2 * m2 + I2 * a1**2 * m1 + I1 * a2**2 * m2
+               - L1**2 * a2**2 * m2**2 * c12**2 + a1**2 * a2**2 * m1 * m2)
+        dw1 = -(I2 * w1 * k1 + I2 * w1 * k2 - I2 * w2 * k2 + a2**2 * w1 * k1 * m2 + a2**2 * w1 * k2 * m2
+                - a2**2 * w2 * k2 * m2 + L1 * a2**3 * w2**2 * m2**2 * s12 - (L1 * a2**2 * g * m2**2 * np.sin(p1)) / 2
+                - I2 * L1 * g * m2 * np.sin(p1) - (L1 * a2**2 * g * m2**2 * np.sin(p1 - 2 * p2)) / 2
+                - I2 * a1 * g * m1 * np.sin(p1) + (L1**2 * a2**2 * w1**2 * m2**2 * np.sin(2 * p1 - 2 * p2)) / 2
+                + L1 * a2 * w1 * k2 * m2 * c12 - L1 * a2 * w2 * k2 * m2 * c12 + I2 * L1 * a2 * w2**2 * m2 * s12
+                - a1 * a2**2 * g * m1 * m2 * np.sin(p1)) / den
+        dw2 = (I1 * w1 * k2 - I1 * w2 * k2 + L1**2 * w1 * k2 * m2 - L1**2 * w2 * k2 * m2 + a1**2 * w1 * k2 * m1
+               - a1**2 * w2 * k2 * m1 + L1**3 * a2 * w1**2 * m2**2 * s12 + L1**2 * a2 * g * m2**2 * np.sin(p2)
+               + I1 * a2 * g * m2 * np.sin(p2) + (L1**2 * a2**2 * w2**2 * m2**2 * np.sin(2 * p1 - 2 * p2)) / 2
+               + L1 * a2 * w1 * k1 * m2 * c12 + L1 * a2 * w1 * k2 * m2 * c12 - L1 * a2 * w2 * k2 * m2 * c12
+               - L1**2 * a2 * g * m2**2 * c12 * np.sin(p1) + I1 * L1 * a2 * w1**2 * m2 * s12
+               + a1**2 * a2 * g * m1 * m2 * np.sin(p2) + L1 * a1**2 * a2 * w1**2 * m1 * m2 * s12
+               - L1 * a1 * a2 * g * m1 * m2 * c12 * np.sin(p1)) / den
+        return [w1, w2, dw1, dw2]
+
+    return f
+
+
+def authors_prediction(recording: Recording, arms: int, estimates: dict) -> list[np.ndarray]:
+    """Each episode (segment) of ``recording`` simulated by the authors' model from its first sample over its whole
+    length, as their objective function does: per episode (samples, arms) angles from upright."""
+    from scipy.integrate import solve_ivp
+
+    model = single_pendulum(estimates) if arms == 1 else double_pendulum(estimates)
+    out = []
+    for episode in np.unique(recording.episode):
+        rows = recording.episode == episode
+        times = recording.time_s[rows] - recording.time_s[rows][0]
+        start = np.concatenate([arm_angles(recording.q[rows][0]), np.cumsum(recording.qd[rows][0, 1:])])
+        solution = solve_ivp(model, (0.0, times[-1]), start, t_eval=times, method="DOP853", rtol=ODE_TOLERANCE,
+                             atol=ODE_TOLERANCE)
+        require(solution.success, f"the authors' model did not integrate: {solution.message}")
+        out.append(solution.y[:arms].T)
+    return out
+
+
+def rms_per_arm(predicted: list[np.ndarray], recording: Recording) -> list[list[float]]:
+    """Per episode, each arm's RMS angle error (rad) of ``predicted`` against the recorded angles."""
+    recorded = arm_angles(recording.q)
+    return [np.sqrt(np.mean((p - recorded[recording.episode == episode]) ** 2, axis=0)).tolist()
+            for p, episode in zip(predicted, np.unique(recording.episode))]
+
+
+def ours(simulated: np.ndarray, recording: Recording) -> list[np.ndarray]:
+    """``sysid.predict``'s positions (rows, episodes, joints) as per-episode arm angles."""
+    lengths = [int((recording.episode == episode).sum()) for episode in np.unique(recording.episode)]
+    return [arm_angles(simulated[:length, e]) for e, length in enumerate(lengths)]
+
+
+def run(args: MultiarmArgs) -> dict:
+    """Convert, fit, predict both ways; print the table and write multiarm_result.yaml. Returns the result."""
+    require(args.repo is not None, "--repo DIR is required: a clone of github.com/dynamicslab/MultiArm-Pendulum")
+    require(args.arms in RIGS, f"--arms must be one of {sorted(RIGS)}")
+    rig, folder = RIGS[args.arms], args.repo / "ParameterEstimation" / RIGS[args.arms].folder
+    recordings = read_segments(folder / rig.data, args.arms)
+    estimates = dict(zip(rig.estimate_names, np.asarray(load_mat(folder / rig.estimates)["EstimatedParameters"])
+                         .reshape(-1).tolist()))
+    paths = {}
+    for name, recording in recordings.items():
+        paths[name] = write_trajectory(args.output / f"{name.lower()}.npz", recording, ("cart", *POLES[:args.arms]),
+                                       [True] + [False] * args.arms)
+    fit_args = sysid.SysidArgs(
+        trajectory=paths["Y_id"], task=rig.task, config=rig.preset, fit=list(rig.fit), validate=[paths["Y_vad"]],
+        window_steps=args.window_steps, window_stride=args.window_stride, guesses=args.guesses,
+        iterations=args.iterations, device=args.device, output=args.output / "fit")
+    start = time.perf_counter()
+    fitted = sysid.fit(fit_args)
+    result = {"arms": args.arms, "fit_seconds": fitted["seconds"], "total_seconds": 0.0, "fitted": fitted["fitted"],
+              "authors_estimates": estimates, "segments": {}}
+    problem = sysid.read_problem(fit_args)
+    for name, recording in recordings.items():
+        simulated, _ = sysid.predict(fit_args, problem, fitted["fitted"], recording)
+        result["segments"][name] = [
+            {"ours": mine, "authors": theirs} for mine, theirs in
+            zip(rms_per_arm(ours(simulated, recording), recording),
+                rms_per_arm(authors_prediction(recording, args.arms, estimates), recording))]
+    result["total_seconds"] = round(time.perf_counter() - start, 1)
+    table(result)
+    write_text(args.output / "multiarm_result.yaml", yaml.safe_dump(result, sort_keys=False))
+    print(f"wrote {args.output / 'multiarm_result.yaml'}")
+    return result
+
+
+POLES = ("pole", "pole2")
+"""The joint roles of the arms, from the cart up."""
+
+
+def table(result: dict):
+    """Each segment's RMS angle error per arm: this project's fit against the authors' model."""
+    print("RMS angle error (rad) per segment, each simulated from its first sample over its whole length:")
+    print(f"{'segments':<8} {'#':>2} {'this fit (per arm)':>24} {'the authors (per arm)':>24} {'ratio':>14}")
+    for name, segments in result["segments"].items():
+        for k, errors in enumerate(segments):
+            mine, theirs = errors["ours"], errors["authors"]
+            ratio = " ".join(f"{m / t:.2f}" for m, t in zip(mine, theirs))
+            print(f"{name:<8} {k:>2} {' / '.join(f'{e:.4f}' for e in mine):>24} "
+                  f"{' / '.join(f'{e:.4f}' for e in theirs):>24} {ratio:>14}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    quiet_libraries()
+    with clean_errors(ConfigError, StageError):
+        args = parse(MultiarmArgs, MultiarmArgs(), sys.argv[1:] if argv is None else argv, __doc__)
+        run(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
