@@ -106,14 +106,16 @@ def free_swings(path: Path, hidden: dict, starts_rad: list[float], seconds: floa
 HIDDEN = {"pole_inertia_scale": 1.3, "pole_damping_n_m_s_rad": 1.5e-4, "pole_friction_n_m": 4e-4}
 
 
-def test_fit_recovers_a_free_swing_of_known_physics(tmp_path):
+@pytest.mark.parametrize("batched", [False, True])
+def test_fit_recovers_a_free_swing_of_known_physics(batched, tmp_path):
     """A free swing recorded by the env at 1 kHz with its cart held, on hidden physics (the arm's inertia 30% above
     the stage's shape, viscous damping and Coulomb friction), is fitted back within 1% by ``--config
-    multiarm_pendulum``; each episode simulated from its first row then follows the recording."""
+    multiarm_pendulum``, with the Jacobian's columns in rollouts of their own (a CPU's default) or in the fit's own
+    rollout (a GPU's); each episode simulated from its first row then follows the recording."""
     path = free_swings(tmp_path / "swing.npz", HIDDEN, [1.2, 0.5], seconds=3.0)
     result = sysid.fit(sysid.SysidArgs(trajectory=path, task="cartpole-swingup", config="multiarm_pendulum",
                                        fit=list(HIDDEN), window_steps=[50, 500], window_stride=2, guesses=1,
-                                       iterations=8, output=tmp_path / "fit"))
+                                       iterations=8, batched_jacobian=batched, output=tmp_path / "fit"))
     for name, value in HIDDEN.items():
         assert result["fitted"][name] == pytest.approx(value, rel=0.01), name
     for episode in result["prediction"][str(path)]:
@@ -149,4 +151,11 @@ def test_benchmark_command_compares_with_the_authors(tmp_path, capsys):
     assert "the authors (per arm)" in out
     result = (tmp_path / "multiarm_result.yaml").read_text()
     assert (tmp_path / "y_id.npz").is_file() and (tmp_path / "y_vad.npz").is_file()
-    assert "authors_estimates" in result and len(multiarm.yaml.safe_load(result)["segments"]["Y_id"]) == 2
+    result = multiarm.yaml.safe_load(result)
+    assert len(result["segments"]["Y_id"]) == 2 and len(result["segments"]["Y_vad"]) == 1
+    e = result["authors_estimates"]  # SinglePendulumODE.m: phi'' = (a1 g m1 sin(phi) - k1 phi') / (m1 a1^2 + I1)
+    told = result["what_a_swing_tells"]
+    assert told["authors"]["m1 a1 g / J1 (1/s^2)"] == pytest.approx(e["a1"] * e["g"] * e["m1"]
+                                                                    / (e["m1"] * e["a1"] ** 2 + e["I1"]))
+    assert told["authors"]["k1 / J1 (1/s)"] == pytest.approx(e["k1"] / (e["m1"] * e["a1"] ** 2 + e["I1"]))
+    assert set(told["ours"]) == set(told["authors"])

@@ -81,13 +81,13 @@ class MultiarmArgs:
     """1: the single pendulum's recordings, 2: the double pendulum's."""
     output: Path = Path("logs/multiarm")
     """Folder for the recordings, the fit (``fit/``) and multiarm_result.yaml (one per ``--arms``)."""
-    window_steps: list[int] = field(default_factory=lambda: [100, 1000])
+    window_steps: list[int] = field(default_factory=lambda: [100, 500])
     """Env steps (1 ms each) of the fit's shooting windows: a fit with each in turn (``tools.sysid``)."""
-    guesses: int = 2
-    """Starting guesses fitted at once."""
+    guesses: int = 1
+    """Starting guesses fitted at once (the first: the stage's values)."""
     iterations: int = 7
     """Levenberg-Marquardt iterations with each window length."""
-    window_stride: int = 4
+    window_stride: int = 2
     """Fit every this-many-th window of ``Y_id`` (1: all)."""
     device: str = "cpu"
     """Where the fit runs: 'cpu' or 'cuda:N'."""
@@ -227,7 +227,10 @@ def run(args: MultiarmArgs) -> dict:
     start = time.perf_counter()
     fitted = sysid.fit(fit_args)
     result = {"arms": args.arms, "fit_seconds": fitted["seconds"], "total_seconds": 0.0, "fitted": fitted["fitted"],
-              "authors_estimates": estimates, "segments": {}}
+              "authors_estimates": estimates,
+              "what_a_swing_tells": {"ours": invariants(stage_terms(fit_args, fitted["fitted"]), args.arms),
+                                     "authors": invariants(estimates | {"c1": 0.0, "c2": 0.0}, args.arms)},
+              "segments": {}}
     problem = sysid.read_problem(fit_args)
     for name, recording in recordings.items():
         simulated, _ = sysid.predict(fit_args, problem, fitted["fitted"], recording)
@@ -236,6 +239,9 @@ def run(args: MultiarmArgs) -> dict:
             zip(rms_per_arm(ours(simulated, recording), recording),
                 rms_per_arm(authors_prediction(recording, args.arms, estimates), recording))]
     result["total_seconds"] = round(time.perf_counter() - start, 1)
+    print("what a free swing tells, per arm 1's inertia about its hinge J1 (this fit | the authors' estimates):")
+    for key, value in result["what_a_swing_tells"]["ours"].items():
+        print(f"  {key:<32} {value:12.5g} | {result['what_a_swing_tells']['authors'][key]:12.5g}")
     table(result)
     write_text(args.output / "multiarm_result.yaml", yaml.safe_dump(result, sort_keys=False))
     print(f"wrote {args.output / 'multiarm_result.yaml'}")
@@ -244,6 +250,46 @@ def run(args: MultiarmArgs) -> dict:
 
 POLES = ("pole", "pole2")
 """The joint roles of the arms, from the cart up."""
+
+
+def stage_terms(args: sysid.SysidArgs, fitted: dict) -> dict:
+    """The rig's stage with the ``fitted`` physics in the authors' terms: per arm k its mass ``mk``, centre of mass
+    ``ak`` and inertia about it ``Ik``, its joint's damping ``kk`` and friction ``ck``, arm 1's length ``L1`` (hinge
+    to hinge) and ``g``."""
+    import torch
+
+    from .. import tasks
+
+    env = tasks.make(args.task, num_envs=1, device="cpu", preset=args.config)
+    env.set_physical_params(**{name: torch.tensor([value]) for name, value in fitted.items()})
+    values = {name: float(v[0]) for name, v in env.physical_params().items()}
+    terms = {"g": values["gravity_m_s2"]}
+    for k, role in enumerate(POLES[:len(env.joint_roles) - 1], start=1):
+        terms |= {f"m{k}": values[f"{role}_mass_kg"], f"a{k}": values[f"{role}_com_m"],
+                  f"I{k}": values[f"{role}_inertia_kg_m2"], f"k{k}": values[f"{role}_damping_n_m_s_rad"],
+                  f"c{k}": values[f"{role}_friction_n_m"]}
+    if len(env.joint_roles) > 2:
+        hinge = env.scene.model.joint_X_p.numpy()[env.scene.role_joints[2]][:3]
+        terms["L1"] = float(np.linalg.norm(hinge))
+    env.close()
+    return terms
+
+
+def invariants(terms: dict, arms: int) -> dict:
+    """What a free swing can tell of the physics (the equations of motion divided by arm 1's inertia about its hinge
+    J1): gravity's torque, the second arm's inertia and coupling, the joints' damping and friction, each per J1."""
+    g = terms["g"]
+    if arms == 1:
+        j1 = terms["I1"] + terms["m1"] * terms["a1"] ** 2
+        return {"m1 a1 g / J1 (1/s^2)": terms["m1"] * terms["a1"] * g / j1, "k1 / J1 (1/s)": terms["k1"] / j1,
+                "c1 / J1 (rad/s^2)": terms["c1"] / j1}
+    m1, m2, a1, a2, length = terms["m1"], terms["m2"], terms["a1"], terms["a2"], terms["L1"]
+    j1 = terms["I1"] + m1 * a1**2 + m2 * length**2
+    return {"J2 / J1": (terms["I2"] + m2 * a2**2) / j1, "m2 a2 L1 / J1": m2 * a2 * length / j1,
+            "(m1 a1 + m2 L1) g / J1 (1/s^2)": (m1 * a1 + m2 * length) * g / j1,
+            "m2 a2 g / J1 (1/s^2)": m2 * a2 * g / j1, "k1 / J1 (1/s)": terms["k1"] / j1,
+            "k2 / J1 (1/s)": terms["k2"] / j1, "c1 / J1 (rad/s^2)": terms["c1"] / j1,
+            "c2 / J1 (rad/s^2)": terms["c2"] / j1}
 
 
 def table(result: dict):

@@ -3,23 +3,30 @@ simulator (``gradients.rollout``).
 
     python -m cartpole_warp.tools.sysid --task cartpole-swingup --trajectory rig.csv
     python -m cartpole_warp.tools.sysid --task cartpole-balance --trajectory RUN/play/trajectory.npz
+    python -m cartpole_warp.tools.sysid --task cartpole-swingup --config multiarm_pendulum --trajectory y_id.npz \
+        --validate y_vad.npz --fit pole_inertia_scale pole_damping_n_m_s_rad pole_friction_n_m --window-steps 100 500
 
 The recording (CSV with a header row, or NPZ; ``play.py --headless`` writes one of env 0 as ``trajectory.npz``):
 ``time_s``; ``action`` (the action applied from that row's time to the next row's, -1..1 as the task takes it); per
 joint role its position, ``cart_pos_m`` for the cart and ``<role>_angle_rad`` for each pole (``pole_angle_rad``,
 ``pole2_angle_rad``: the hinge's angle relative to the body below it, 0 upright), and optionally its velocity
 (``cart_vel_m_s``, ``<role>_vel_rad_s``); an optional ``episode`` column marks where the rig was reset. Rows come at
-the task's control period (``sim.physics_dt`` x ``sim.decimation``).
+one rate that the physics step ``sim.physics_dt`` divides: the fit steps the env at the recording's rate. ``--config``
+gives the rig's own env settings (its stage, the joints it holds still: ``sim.held_joints``, whose recorded positions
+must not move).
 
-Multiple shooting: the recording is cut into windows of ``--window-steps`` env steps, each simulated from its own
+Multiple shooting: the recording is cut into windows of ``--window-steps`` env steps (several: a fit with each length
+in turn, each from the last one's result), each simulated from its own
 initial state (fitted too, starting from the recorded positions and the recorded or differenced velocities), so that
 errors do not compound through a chaotic trajectory. Every window of every starting guess is one env of one batched,
 differentiable rollout: ``--guesses`` guesses, each parameter drawn log-uniformly within ``--spread`` of the stage's
 value, fitted at once by Levenberg-Marquardt on the parameters (the log of those the stage sets; a damping or a
 friction, 0 on the stage, in 1% of its joint's natural unit, kept >= 0) and every window's start (the gradient
 through the simulator's adjoints, the Jacobian by forward differences of the batched rollout, the windows' starts
-eliminated per window). The guess that fits best is printed against the stage's
-values with the residual, plotted (recorded against simulated positions, PNG) and written as a preset whose
+eliminated per window). The guess that fits best is printed against the stage's values with the residual, plotted
+(recorded against simulated positions, PNG), tried on whole episodes (each episode of the recording and of the
+``--validate`` recordings simulated from its first row over its whole length: RMS error per joint, a plot each) and
+written as a preset whose
 randomization ranges lie ``--randomize`` around the fit (0: exactly the fit) for ``train.py --config FILE`` and
 ``play.py --config FILE``. A parameter whose standard error exceeds 1% of its fit is reported as not identified by
 the recording. The recording must be of one physics: no domain randomization or action delay while it was made (the
@@ -31,7 +38,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -108,6 +115,10 @@ class SysidArgs:
     """The preset's randomization ranges: the fit times (1 -/+ this) (0: the fit exactly)."""
     device: str = "cpu"
     """Where the rollouts run: 'cpu' or 'cuda:N'."""
+    batched_jacobian: bool | None = None
+    """Roll the Jacobian's columns out in the fit's own rollout, as copies of its envs (one rollout of many envs
+    instead of one per column); default: on a GPU, which runs a small batch in as many launches as a large one, and
+    not on a CPU, whose time grows with the envs."""
     output: Path | None = None
     """Folder for sysid_preset.yaml, sysid_fit.png and sysid_result.yaml (default: <trajectory>_sysid beside the
     recording)."""
@@ -151,11 +162,6 @@ def velocities(recording: Recording, dt: float, sliders: list[bool]) -> np.ndarr
             differenced = np.gradient(q, dt, axis=0)
             qd[rows] = np.where(np.isfinite(qd[rows]), qd[rows], differenced)
     return np.nan_to_num(qd)
-
-
-def unit(size: int, index: int, device) -> torch.Tensor:
-    """The ``index``-th unit vector of length ``size``."""
-    return torch.nn.functional.one_hot(torch.tensor(index), size).float().to(device)
 
 
 def angle_error(a: torch.Tensor, b: torch.Tensor, hinge: torch.Tensor) -> torch.Tensor:
@@ -293,8 +299,15 @@ class WindowFit:
                              "joints' limits")
         self.num_windows = len(self.starts)
         self.num_envs = n = self.guesses * self.num_windows
-        env = tasks.get(args.task).env_class(tasks.env_config(args.task, args.config, num_envs=n, device=args.device,
-                                                              sim={"gradients": True, **problem.sim}))
+        free = [not h for h in problem.held]
+        variants = 1 + 2 * sum(free) + len(problem.names)
+        batched = args.device != "cpu" if args.batched_jacobian is None else args.batched_jacobian
+        self.copies = variants if batched else 1
+        """Copies of the N envs in one rollout: the fit's own and, with ``batched_jacobian``, the Jacobian's columns'
+        (each window's start or a parameter moved by ``JACOBIAN_STEP``)."""
+        sim = {"gradients": True, **problem.sim}
+        env = tasks.get(args.task).env_class(tasks.env_config(args.task, args.config, num_envs=n * self.copies,
+                                                              device=args.device, sim=sim))
         self.rollout = DifferentiableRollout(env, self.horizon)
         self.device = device = self.rollout.device
         rows = np.array(self.starts)[:, None] + np.arange(self.horizon + 1)[None, :]  # (windows, H + 1)
@@ -309,8 +322,7 @@ class WindowFit:
         self.velocity_scale = tensor(np.maximum(estimated.std(axis=0), 1e-3))
         self.qd_start = tensor(estimated[rows[:, 0]]).repeat(self.guesses, 1)
         self.joints = len(problem.roles)
-        free = torch.tensor([not h for h in problem.held], device=device)
-        self.free_columns = torch.cat([free, free]).nonzero().squeeze(1)
+        self.free_columns = torch.tensor(free + free, device=device).nonzero().squeeze(1)
         """The columns of (positions, velocities) that a window's start moves: those of the joints not held."""
         self.guess_of = torch.arange(n, device=device) // self.num_windows
 
@@ -329,28 +341,46 @@ class WindowFit:
         return torch.where(self.linear, self.base * theta,
                            self.base * torch.exp(torch.where(self.linear, 0.0, theta)))
 
-    def residuals(self, theta: torch.Tensor, starts: torch.Tensor) -> tuple[torch.Tensor, Trajectory]:
-        """(N, (H + 1) x joints) normalized position errors of every window, and the rollout."""
-        values, joints = self.physical(theta), self.joints
+    def variants(self, theta: torch.Tensor, starts: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The parameters and windows' starts of the fit itself, then of each forward difference of the Jacobian:
+        each window's start's columns, then each parameter, moved by ``JACOBIAN_STEP``."""
+        step_theta = JACOBIAN_STEP * torch.eye(theta.shape[1], device=self.device)
+        step_starts = JACOBIAN_STEP * torch.eye(starts.shape[1], device=self.device)
+        return ([(theta, starts)] + [(theta, starts + moved) for moved in step_starts]
+                + [(theta + moved, starts) for moved in step_theta])
+
+    def residuals(self, variants: list[tuple[torch.Tensor, torch.Tensor]]) -> tuple[torch.Tensor, Trajectory]:
+        """One batched rollout of ``variants`` (at most ``copies``; padded with the first): each one's (N, (H + 1) x
+        joints) normalized position errors of every window, stacked, and the rollout of the first."""
+        variants = variants + variants[:1] * (self.copies - len(variants))
+        n, joints = self.num_envs, self.joints
+        values = self.physical(torch.cat([theta for theta, _ in variants]))
         params = {name: values[:, k].repeat_interleave(self.num_windows) for k, name in enumerate(self.problem.names)}
-        moved = torch.zeros((self.num_envs, 2 * joints), device=self.device).index_copy(1, self.free_columns, starts)
-        q0 = self.recorded[:, 0] + moved[:, :joints] * self.scale
-        qd0 = self.qd_start + moved[:, joints:] * self.velocity_scale
-        out = self.rollout(q0, qd0, actions=self.actions, params=params)
-        return (angle_error(out.q.transpose(0, 1), self.recorded, self.hinge) / self.scale).flatten(1), out
+        starts = torch.cat([starts for _, starts in variants])
+        moved = torch.zeros((n * self.copies, 2 * joints), device=self.device).index_copy(1, self.free_columns, starts)
+        recorded = self.recorded.repeat(self.copies, 1, 1)
+        q0 = recorded[:, 0] + moved[:, :joints] * self.scale
+        qd0 = self.qd_start.repeat(self.copies, 1) + moved[:, joints:] * self.velocity_scale
+        out = self.rollout(q0, qd0, actions=self.actions.repeat(1, self.copies, 1), params=params)
+        r = (angle_error(out.q.transpose(0, 1), recorded, self.hinge) / self.scale).flatten(1).unflatten(0, (-1, n))
+        first = Trajectory(*(x[:, :n] for x in (out.q, out.qd, out.obs, out.actions, out.rewards, out.end_reason)))
+        return r, first
+
+    def jacobians(self, variants: list[tuple[torch.Tensor, torch.Tensor]], first: torch.Tensor):
+        """The residuals of every variant, ``first`` (the first ``copies``' already rolled out) and the others' (no
+        gradient), and from them the residuals of the fit (N, K) and their Jacobians by forward differences, (N, K,
+        S) in each window's start (S: its columns) and (N, K, P) in the parameters."""
+        with torch.no_grad():
+            later = [self.residuals(variants[i:i + self.copies])[0] for i in range(self.copies, len(variants),
+                                                                                   self.copies)]
+        r = torch.cat([first.detach(), *later])[:len(variants)]
+        moved = ((r[1:] - r[:1]) / JACOBIAN_STEP).permute(1, 2, 0)
+        columns = variants[0][1].shape[1]
+        return r[0], moved[:, :, :columns], moved[:, :, columns:]
 
     def per_guess(self, r: torch.Tensor) -> torch.Tensor:
         """(G,) each guess's loss: half its windows' squared residuals."""
         return torch.zeros(self.guesses, device=self.device).index_add_(0, self.guess_of, 0.5 * r.pow(2).sum(dim=1))
-
-    def jacobians(self, theta: torch.Tensor, starts: torch.Tensor, r: torch.Tensor):
-        """The Jacobians of the residuals ``r`` by forward differences, (N, K, S) in each window's start (S: its
-        columns) and (N, K, P) in ``theta``: one batched rollout per column (the windows are independent envs)."""
-        step, device, size, columns = JACOBIAN_STEP, self.device, len(self.problem.names), starts.shape[1]
-        a_cols = [(self.residuals(theta, starts + step * unit(columns, j, device))[0] - r) / step
-                  for j in range(columns)]
-        b_cols = [(self.residuals(theta + step * unit(size, k, device), starts)[0] - r) / step for k in range(size)]
-        return torch.stack(a_cols, dim=2), torch.stack(b_cols, dim=2)
 
     def schur(self, a: torch.Tensor, b: torch.Tensor, lam: torch.Tensor, extra: torch.Tensor | None = None):
         """Per window: A'A + lam, A'B, the parameters' normal matrix with the window's start eliminated, and
@@ -362,16 +392,18 @@ class WindowFit:
 
     def step(self, theta: torch.Tensor, starts: torch.Tensor, lm_lambda: torch.Tensor):
         """One Levenberg-Marquardt iteration of every guess (``lm_lambda`` (G,): each one's damping): the exact gradient
-        through the simulator (one backward pass), the Jacobian's columns by forward differences, a step on ``theta``
+        through the simulator (one backward pass), the Jacobian's columns by forward differences (in the same batched
+        rollout), a step on ``theta``
         and every window's start, kept where it lowers the guess's loss. The new theta, starts and lambdas, and the
         best guess's loss."""
         theta_leaf, starts_leaf = theta.clone().requires_grad_(), starts.clone().requires_grad_()
-        r, _ = self.residuals(theta_leaf, starts_leaf)
-        loss = self.per_guess(r.detach())
-        self.per_guess(r).sum().backward()
+        variants = self.variants(theta_leaf, starts_leaf)
+        first = self.residuals(variants[:self.copies])[0]
+        loss = self.per_guess(first[0].detach())
+        self.per_guess(first[0]).sum().backward()
         grad_theta, grad_starts, guess_of, size = theta_leaf.grad, starts_leaf.grad, self.guess_of, theta.shape[1]
+        _, a, b = self.jacobians(variants, first)
         with torch.no_grad():
-            a, b = self.jacobians(theta, starts, r.detach())
             ata, atb, reduced, solve_ata = self.schur(a, b, lm_lambda[guess_of], grad_starts[:, :, None])
             reduced_normal = torch.zeros((self.guesses, size, size), device=self.device).index_add_(
                 0, guess_of, reduced)
@@ -388,7 +420,7 @@ class WindowFit:
             step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
             trial_theta, trial_starts = theta + step_theta, starts + step_starts.squeeze(2)
             trial_theta = torch.where(self.linear, trial_theta.clamp(min=0.0), trial_theta)
-            trial_loss = self.per_guess(self.residuals(trial_theta, trial_starts)[0])
+            trial_loss = self.per_guess(self.residuals([(trial_theta, trial_starts)])[0][0])
             better = trial_loss < loss
             theta = torch.where(better[:, None], trial_theta, theta)
             starts = torch.where(better[guess_of][:, None], trial_starts, starts)
@@ -400,11 +432,12 @@ class WindowFit:
         """Each guess's loss (G,), the best guess (a guess that diverged is never it), the standard errors of its
         ``theta`` (P,) and the rollout: the noise's variance (the residual per degree of freedom) times the inverse of
         the parameters' normal matrix (Gauss-Newton's, each window's start eliminated)."""
-        r, out = self.residuals(theta, starts)
+        variants = self.variants(theta, starts)
+        first, out = self.residuals(variants[:self.copies])
+        r, a, b = self.jacobians(variants, first)
         losses = self.per_guess(r)
         best = int(losses.nan_to_num(nan=math.inf).argmin())
         best_guess_rows = self.guess_of == best
-        a, b = self.jacobians(theta, starts, r)
         normal = self.schur(a[best_guess_rows], b[best_guess_rows],
                             torch.zeros(self.num_windows, device=self.device))[2].sum(dim=0)
         first_rows = self.starts
@@ -464,7 +497,8 @@ def fit(args: SysidArgs) -> dict:
                     ["decimation"] == 1, f"{path}: rows must come every {problem.dt:g} s, as the fitted recording's")
         simulated, rms = predict(args, problem, result["fitted"], recording)
         result["prediction"][str(path)] = rms
-        plot(output / f"sysid_prediction_{number}.png", recording, first_rows(recording), simulated, problem.dt,
+        in_sequence = replace(recording, time_s=np.arange(len(recording.time_s)) * problem.dt)  # episodes side by side
+        plot(output / f"sysid_prediction_{number}.png", in_sequence, first_rows(recording), simulated, problem.dt,
              labels)
     report_prediction(result["prediction"], labels)
     write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
