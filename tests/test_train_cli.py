@@ -382,7 +382,8 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     (["--num-envs", "0"], "error: invalid config: env.num_envs: Input should be greater than or equal to 1 (got 0)"),
     (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
     (["--config", "nonexistent"],
-     "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, rig_swingup, robust, tutorial"),
+     "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, multiarm_double_pendulum, "
+     "multiarm_pendulum, rig_swingup, robust, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),
