@@ -31,6 +31,7 @@ Newton's scenes here compute none, so the poles pass through each other as there
 """
 
 import dataclasses
+import itertools
 import math
 import sys
 from dataclasses import dataclass
@@ -190,9 +191,9 @@ DMC = Cartpole(rail=Box(DMC_RAIL_SIZE_M), cart=Box(DMC_CART_SIZE_M), cart_mass_k
 
 
 MULTIARM_ARM_SECTION_M = (0.0127, 0.03175)
-"""The multi-arm pendulum's arms (Kaheman et al. 2022, dynamicslab/MultiArm-Pendulum, ``CAD Files/Drawing/Arm1.pdf``):
-a machined U-channel of 12.7 mm along the hinge's axis by 31.75 mm across, drawn here as a solid box of that section
-(the stage's inertia: a shape that the fit's inertia scale corrects)."""
+"""The multi-arm pendulum's arms (Kaheman et al., HardwareX 2023, dynamicslab/MultiArm-Pendulum, ``CAD
+Files/Drawing/Arm1.pdf``): a machined U-channel of 12.7 mm along the hinge's axis by 31.75 mm across, drawn here as a
+solid box of that section (the stage's inertia: a shape that the fit's inertia scale corrects)."""
 MULTIARM_ARM1_SPACING_M = 0.17272
 """Arm 1 from its hinge on the cart to arm 2's (``Arm1.pdf``, 6.80 in)."""
 MULTIARM_ARM1_LENGTH_M = 0.220
@@ -204,7 +205,7 @@ MULTIARM_ARM2_LENGTH_M = 0.27588
 MULTIARM_MASSES_KG = {"single": 0.147585, "double": (0.093844, 0.137596)}
 """The arms' masses: the repository's estimates (``EstimatedParameters_SinglePendulum.mat``,
 ``EstimatedParameters_DoublePendulum.mat``), which no drawing states. A free swing cannot tell them (scaling every
-mass and inertia with the friction moves nothing): they fix that scale, and the fit finds the rest."""
+mass and inertia with the damping and friction moves nothing): they fix that scale, and the fit finds the rest."""
 MULTIARM_COLORS = {"rail": (0.35, 0.35, 0.38), "cart": (0.2, 0.2, 0.22), "pole": (0.75, 0.75, 0.78)}
 
 
@@ -258,12 +259,11 @@ def build_stage(spec: Cartpole = CLASSIC):
     hinge = (spec.hinge_offset_from_cart_m, 0, 0)
     rail = _body(stage, "/cartpole/rail", (0, 0, 0), spec.rail, (0, 0, 0), RAIL_MASS_KG, spec.colors["rail"])
     cart = _body(stage, "/cartpole/cart", (0, 0, 0), spec.cart, (0, 0, 0), spec.cart_mass_kg, spec.colors["cart"])
-    arms, heights = spec.chain(), [0.0]
-    for arm in arms:
-        heights.append(heights[-1] + arm.spacing_m)
-    poles = [_body(stage, f"/cartpole/{pole_name(k)}", (hinge[0], 0, heights[k - 1]), arm.shape,
+    arms = spec.chain()
+    heights = itertools.accumulate((arm.spacing_m for arm in arms[:-1]), initial=0.0)  # hinges above the cart's
+    poles = [_body(stage, f"/cartpole/{pole_name(k)}", (hinge[0], 0, height), arm.shape,
                    (0, 0, arm.com_above_hinge_m), arm.mass_kg, spec.colors["pole"])
-             for k, arm in enumerate(arms, start=1)]
+             for k, (arm, height) in enumerate(zip(arms, heights), start=1)]
 
     fixed = UsdPhysics.FixedJoint.Define(stage, "/cartpole/railJoint")
     fixed.CreateBody1Rel().SetTargets([rail.GetPath()])
@@ -280,15 +280,20 @@ def build_stage(spec: Cartpole = CLASSIC):
         prim.CreateAttribute("newton:limitDamping", Sdf.ValueTypeNames.Float).Set(spec.cart_limit_damping_n_s_m)
         prim.CreateAttribute("mjc:solreflimit", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(*MUJOCO_SOLREFLIMIT))
 
-    for k, (parent, pole) in enumerate(zip([cart, *poles], poles), start=1):
+    pole_joints(stage, hinge, arms, [cart, *poles])
+    return stage
+
+
+def pole_joints(stage, hinge: tuple, arms: tuple, bodies: list):
+    """Each pole's revolute joint about X: the first at ``hinge`` on the cart (``bodies[0]``), each further one at the
+    top of the pole below (its ``spacing_m``)."""
+    for k, (parent, pole) in enumerate(zip(bodies, bodies[1:]), start=1):
         pole_joint = UsdPhysics.RevoluteJoint.Define(stage, f"/cartpole/{pole_name(k)}Joint")
         pole_joint.CreateBody0Rel().SetTargets([parent.GetPath()])
         pole_joint.CreateBody1Rel().SetTargets([pole.GetPath()])
         pole_joint.CreateAxisAttr(UsdPhysics.Tokens.x)
-        below = arms[k - 2].spacing_m if k > 1 else 0.0
-        pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge) if k == 1 else Gf.Vec3f(0.0, 0.0, below))
+        pole_joint.CreateLocalPos0Attr(Gf.Vec3f(*hinge) if k == 1 else Gf.Vec3f(0.0, 0.0, arms[k - 2].spacing_m))
         pole_joint.CreateLocalPos1Attr(Gf.Vec3f(0.0, 0.0, 0.0))
-    return stage
 
 
 def pole_name(k: int) -> str:

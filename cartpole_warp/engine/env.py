@@ -322,7 +322,8 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
     def set_physical_params(self, **values: "torch.Tensor"):
         """Set what the named envs simulate from now on: (N,) tensors on ``device`` in SI units, named as in
         ``physical_params`` (derived values excepted); the others keep theirs. With randomization ``at='reset'``, an
-        env's next episode start draws anew."""
+        env's next episode start draws anew. A first friction on an env that does not randomize it captures the step
+        again (a graph captured around ``step`` before then lacks it)."""
         import torch
 
         for name, value in values.items():

@@ -419,8 +419,7 @@ class PhysicalParams:
         import torch
 
         arrays, table = self._arrays(), {p.name: p for p in self.table if p.quantity.settable}
-        newly = False
-        for name, value in values.items():
+        for name, value in values.items():  # every value checked before any is copied
             if name not in table:
                 raise ValueError(f"unknown physical parameter {name!r}; settable: {', '.join(table)}")
             p = table[name]
@@ -432,8 +431,10 @@ class PhysicalParams:
             if p.quantity is ACTION_DELAY and (value > self.cfg.action_delay_steps).any():
                 raise ValueError(f"action_delay_steps: at most randomization.action_delay_steps="
                                  f"{self.cfg.action_delay_steps} (the action history the env keeps)")
-            array = arrays[p.quantity]
-            (array if p.role is None else array[:, p.role_index]).copy_(value)
+        newly = False
+        for name, value in values.items():
+            p = table[name]
+            (arrays[p.quantity] if p.role is None else arrays[p.quantity][:, p.role_index]).copy_(value)
             newly |= p.quantity is FRICTION and not self.applies_friction and bool((value != 0).any())
         self.applies_friction |= newly
         return newly

@@ -412,6 +412,8 @@ class DifferentiableRollout:
         scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
                             requires_grad=True)
         self.model, self.dofs_per_env = scene.model, scene.dofs_per_env
+        self.held = torch.tensor([role in cfg.sim.held_joints for role in self.roles], device=self.device)
+        """Per role: whether ``sim.held_joints`` holds it (its velocity zeroed at the start)."""
         self.role_dofs = wp.array(scene.role_dofs, dtype=int, device=self.device)
         self.max_episode_length = int(cfg.max_episode_length)
         self.episode_steps = wp.zeros(self.num_envs, dtype=int, device=self.device)
@@ -497,7 +499,7 @@ class DifferentiableRollout:
                 tape.zero()
             wp.to_torch(self.episode_steps).copy_(0 if episode_steps is None else episode_steps)
         token = PhysicsFunction.apply(self, *self._physics_tensors(params or {}))
-        q, qd = q0, qd0
+        q, qd = q0, torch.where(self.held, 0.0, qd0)  # as the env zeroes a held joint's velocity
         obs = ObserveFunction.apply(self, q, qd)
         qs, qds, observations, applied, rewards, ends = [q], [qd], [obs], [], [], []
         for t, step in enumerate(self.steps):

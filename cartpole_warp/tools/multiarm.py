@@ -4,7 +4,7 @@ code github.com/dynamicslab/MultiArm-Pendulum, MIT licence): ``tools.sysid`` on 
 authors' own model.
 
     git clone https://github.com/dynamicslab/MultiArm-Pendulum
-    python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 1
+    python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 1   # writes logs/multiarm/arms1/
     python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 2
 
 The repository's ``ParameterEstimation/<Single|Double>Pendulum/*DataForParameterEstimation.mat`` hold free swings of
@@ -36,6 +36,8 @@ from ..settings.config import ConfigError, require
 from ..settings.files import write_text
 from . import sysid
 
+POLES = ("pole", "pole2")
+"""The joint roles of the arms, from the cart up."""
 SEGMENTS = ("Y_id", "Y_vad")
 """The data file's segment lists: to fit and to validate on."""
 ODE_TOLERANCE = 1e-9
@@ -79,8 +81,8 @@ class MultiarmArgs:
     """A clone of github.com/dynamicslab/MultiArm-Pendulum."""
     arms: int = 1
     """1: the single pendulum's recordings, 2: the double pendulum's."""
-    output: Path = Path("logs/multiarm")
-    """Folder for the recordings, the fit (``fit/``) and multiarm_result.yaml (one per ``--arms``)."""
+    output: Path | None = None
+    """Folder for the recordings, the fit (``fit/``) and multiarm_result.yaml (default: logs/multiarm/arms<N>)."""
     window_steps: list[int] = field(default_factory=lambda: [100, 500])
     """Env steps (1 ms each) of the fit's shooting windows: a fit with each in turn (``tools.sysid``)."""
     guesses: int = 1
@@ -202,7 +204,7 @@ def rms_per_arm(predicted: list[np.ndarray], recording: Recording) -> list[list[
             for p, episode in zip(predicted, np.unique(recording.episode))]
 
 
-def ours(simulated: np.ndarray, recording: Recording) -> list[np.ndarray]:
+def fitted_arm_angles(simulated: np.ndarray, recording: Recording) -> list[np.ndarray]:
     """``sysid.predict``'s positions (rows, episodes, joints) as per-episode arm angles."""
     lengths = [int((recording.episode == episode).sum()) for episode in np.unique(recording.episode)]
     return [arm_angles(simulated[:length, e]) for e, length in enumerate(lengths)]
@@ -213,17 +215,18 @@ def run(args: MultiarmArgs) -> dict:
     require(args.repo is not None, "--repo DIR is required: a clone of github.com/dynamicslab/MultiArm-Pendulum")
     require(args.arms in RIGS, f"--arms must be one of {sorted(RIGS)}")
     rig, folder = RIGS[args.arms], args.repo / "ParameterEstimation" / RIGS[args.arms].folder
+    output = args.output or Path("logs/multiarm") / f"arms{args.arms}"
     recordings = read_segments(folder / rig.data, args.arms)
     estimates = dict(zip(rig.estimate_names, np.asarray(load_mat(folder / rig.estimates)["EstimatedParameters"])
                          .reshape(-1).tolist()))
     paths = {}
     for name, recording in recordings.items():
-        paths[name] = write_trajectory(args.output / f"{name.lower()}.npz", recording, ("cart", *POLES[:args.arms]),
+        paths[name] = write_trajectory(output / f"{name.lower()}.npz", recording, ("cart", *POLES[:args.arms]),
                                        [True] + [False] * args.arms)
     fit_args = sysid.SysidArgs(
         trajectory=paths["Y_id"], task=rig.task, config=rig.preset, fit=list(rig.fit), validate=[paths["Y_vad"]],
         window_steps=args.window_steps, window_stride=args.window_stride, guesses=args.guesses,
-        iterations=args.iterations, device=args.device, output=args.output / "fit")
+        iterations=args.iterations, device=args.device, output=output / "fit")
     start = time.perf_counter()
     fitted = sysid.fit(fit_args)
     result = {"arms": args.arms, "fit_seconds": fitted["seconds"], "total_seconds": 0.0, "fitted": fitted["fitted"],
@@ -236,20 +239,16 @@ def run(args: MultiarmArgs) -> dict:
         simulated, _ = sysid.predict(fit_args, problem, fitted["fitted"], recording)
         result["segments"][name] = [
             {"ours": mine, "authors": theirs} for mine, theirs in
-            zip(rms_per_arm(ours(simulated, recording), recording),
+            zip(rms_per_arm(fitted_arm_angles(simulated, recording), recording),
                 rms_per_arm(authors_prediction(recording, args.arms, estimates), recording))]
     result["total_seconds"] = round(time.perf_counter() - start, 1)
     print("what a free swing tells, per arm 1's inertia about its hinge J1 (this fit | the authors' estimates):")
     for key, value in result["what_a_swing_tells"]["ours"].items():
         print(f"  {key:<32} {value:12.5g} | {result['what_a_swing_tells']['authors'][key]:12.5g}")
     table(result)
-    write_text(args.output / "multiarm_result.yaml", yaml.safe_dump(result, sort_keys=False))
-    print(f"wrote {args.output / 'multiarm_result.yaml'}")
+    write_text(output / "multiarm_result.yaml", yaml.safe_dump(result, sort_keys=False))
+    print(f"wrote {output / 'multiarm_result.yaml'}")
     return result
-
-
-POLES = ("pole", "pole2")
-"""The joint roles of the arms, from the cart up."""
 
 
 def stage_terms(args: sysid.SysidArgs, fitted: dict) -> dict:

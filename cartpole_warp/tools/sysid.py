@@ -40,7 +40,6 @@ import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -75,9 +74,11 @@ NO_LIMIT = 1e6
 """A joint limit at or beyond this (m or rad) is none."""
 HELD_STILL = 1e-6
 """A held joint's recorded position may vary by at most this (m or rad) within an episode."""
-RATE_TOLERANCE = 1e-6
-"""Relative tolerance of the recording's row interval against a whole number of physics steps, and of each row's
-interval against the recording's."""
+ROW_JITTER = 1e-3
+"""Each row's interval may differ from the recording's (their median) by this fraction of it."""
+RATE_TOLERANCE = 1e-3
+"""The recording's row interval may differ from a whole number of physics steps by this fraction of it (timestamps
+rounded to the microsecond at 60 Hz are 2e-5 off)."""
 NATURAL_FRACTION = 0.01
 """A damping's or a friction's unit in the fit: this fraction of its joint's natural one (``natural_units``)."""
 
@@ -240,15 +241,22 @@ def natural_units(table: tuple[Parameter, ...], bodies: list, gravity_m_s2: floa
     return units
 
 
-def step_settings(path: Path, recording: Recording, sim) -> tuple[float, dict]:
-    """The recording's row interval (s) and the ``sim`` settings whose env step it is: ``decimation`` physics steps
-    of ``sim.physics_dt`` (ConfigError in one line where rows are uneven or the physics step does not divide them)."""
+def row_interval(path: Path, recording: Recording) -> float:
+    """The recording's row interval (s), the median of its rows' within episodes (ConfigError in one line where they
+    differ by more than ``ROW_JITTER``)."""
     same_episode = np.diff(recording.episode) == 0
     require(same_episode.any(), f"{path}: no episode of two rows or more")
     intervals = np.diff(recording.time_s)[same_episode]
     dt = float(np.median(intervals))
-    require(np.allclose(intervals, dt, rtol=RATE_TOLERANCE * 1e3, atol=0.0),
+    require(np.allclose(intervals, dt, rtol=ROW_JITTER, atol=0.0),
             f"{path}: rows must come at one rate; their intervals range over {intervals.min():g}-{intervals.max():g} s")
+    return dt
+
+
+def step_settings(path: Path, recording: Recording, sim) -> tuple[float, dict]:
+    """The recording's row interval (s) and the ``sim`` settings whose env step it is: ``decimation`` physics steps
+    of ``sim.physics_dt`` (ConfigError in one line where rows are uneven or the physics step does not divide them)."""
+    dt = row_interval(path, recording)
     decimation = round(dt / sim.physics_dt)
     require(decimation >= 1 and abs(decimation * sim.physics_dt - dt) <= RATE_TOLERANCE * dt,
             f"{path}: rows every {dt:g} s, which the physics step sim.physics_dt={sim.physics_dt:g} s does not divide; "
@@ -440,9 +448,9 @@ class WindowFit:
         best_guess_rows = self.guess_of == best
         normal = self.schur(a[best_guess_rows], b[best_guess_rows],
                             torch.zeros(self.num_windows, device=self.device))[2].sum(dim=0)
-        first_rows = self.starts
+        first_rows, free_joints = self.starts, len(self.free_columns) // 2  # a held joint's residuals are all 0
         shared = sum(later - earlier == self.horizon for earlier, later in zip(first_rows, first_rows[1:]))
-        freedom = max(r[best_guess_rows].numel() - shared * self.joints - theta.shape[1]
+        freedom = max((self.num_windows * (self.horizon + 1) - shared) * free_joints - theta.shape[1]
                       - self.num_windows * len(self.free_columns), 1)
         variance = 2 * float(losses[best]) / freedom
         # a direction the data do not see (an eigenvalue ~0) gives the parameters along it a huge error, not none
@@ -479,6 +487,7 @@ class WindowFit:
 def fit(args: SysidArgs) -> dict:
     """The fit (``SysidArgs``): prints its progress and result, writes the plot, the preset and the result file, and
     returns the result."""
+    check_args(args)
     problem = read_problem(args)
     start = time.perf_counter()
     fitter, theta, starts = fit_windows(problem, args, start)
@@ -493,8 +502,10 @@ def fit(args: SysidArgs) -> dict:
                                                                           problem.recording.action.shape[1])
         if number > 0:
             check_held(path, recording, problem.roles, problem.held)
-            require(step_settings(path, recording, SimpleNamespace(physics_dt=problem.dt, mass_matrix_interval=1))[1]
-                    ["decimation"] == 1, f"{path}: rows must come every {problem.dt:g} s, as the fitted recording's")
+            interval = row_interval(path, recording)
+            require(abs(interval - problem.dt) <= RATE_TOLERANCE * problem.dt,
+                    f"{path}: rows every {interval:g} s; they must come every {problem.dt:g} s, as the fitted "
+                    "recording's")
         simulated, rms = predict(args, problem, result["fitted"], recording)
         result["prediction"][str(path)] = rms
         in_sequence = replace(recording, time_s=np.arange(len(recording.time_s)) * problem.dt)  # episodes side by side
@@ -506,6 +517,14 @@ def fit(args: SysidArgs) -> dict:
     print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
           f"(python train.py --task {args.task} --config {preset})")
     return result
+
+
+def check_args(args: SysidArgs):
+    """ConfigError in one line for a setting no fit can run with."""
+    require(args.trajectory is not None, "--trajectory FILE is required (a CSV or NPZ recording)")
+    require(bool(args.window_steps) and min(*args.window_steps, args.window_stride, args.guesses, args.iterations) >= 1,
+            "--window-steps (one length or more), --window-stride, --guesses and --iterations must be >= 1")
+    require(args.spread >= 0 and 0 <= args.randomize < 1, "--spread must be >= 0 and --randomize in [0, 1)")
 
 
 def fit_windows(problem: Problem, args: SysidArgs, start: float) -> tuple[WindowFit, torch.Tensor, torch.Tensor]:
@@ -621,7 +640,7 @@ def plot(path: Path, recording: Recording, starts: list[int], simulated: np.ndar
 
 def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, table: tuple[Parameter, ...]) -> Path:
     """A preset whose randomization draws the fitted physics (times 1 -/+ ``args.randomize``) at every reset, on
-    ``args.config``'s env settings where it names a preset."""
+    ``args.config``'s env settings where it names a preset, but for its held joints: a policy trains with them free."""
     low, high = 1.0 - args.randomize, 1.0 + args.randomize
     sections: dict = {}
     for p in (p for p in table if p.name in fitted):
@@ -634,9 +653,11 @@ def write_preset(path: Path, args: SysidArgs, stage: dict, fitted: dict, table: 
         else:
             sections.setdefault(p.quantity.section, {})[p.role] = bounds
     base = tasks.preset_overrides(args.task, args.config).get("env", {})
+    held = base.get("sim", {}).pop("held_joints", [])
     preset = {"task": args.task, "env": merge(base, {"randomization": {"at": "reset", **sections}})}
+    freed = f"; the joints the recording held ({', '.join(held)}) move here" if held else ""
     header = (f"# The physics tools.sysid fitted to {args.trajectory} (task {args.task}); randomization ranges "
-              f"{args.randomize:g} around the fit.\n# python train.py --task {args.task} --config {path}\n")
+              f"{args.randomize:g} around the fit{freed}.\n# python train.py --task {args.task} --config {path}\n")
     return write_text(path, header + yaml.safe_dump(preset, sort_keys=False))
 
 
@@ -644,10 +665,6 @@ def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, StageError):
         args = parse(SysidArgs, SysidArgs(), sys.argv[1:] if argv is None else argv, __doc__)
-        require(args.trajectory is not None, "--trajectory FILE is required (a CSV or NPZ recording)")
-        require(min(*args.window_steps, args.window_stride, args.guesses, args.iterations) >= 1,
-                "--window-steps, --window-stride, --guesses and --iterations must be >= 1")
-        require(args.spread >= 0 and 0 <= args.randomize < 1, "--spread must be >= 0 and --randomize in [0, 1)")
         fit(args)
     return 0
 
