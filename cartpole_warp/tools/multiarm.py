@@ -228,18 +228,16 @@ def run(args: MultiarmArgs) -> dict:
         window_steps=args.window_steps, window_stride=args.window_stride, guesses=args.guesses,
         iterations=args.iterations, device=args.device, output=output / "fit")
     start = time.perf_counter()
-    fitted = sysid.fit(fit_args)
+    fitted, positions = sysid.fit_and_predict(fit_args)
     result = {"arms": args.arms, "fit_seconds": fitted["seconds"], "total_seconds": 0.0, "fitted": fitted["fitted"],
               "authors_estimates": estimates,
               "what_a_swing_tells": {"ours": invariants(stage_terms(fit_args, fitted["fitted"]), args.arms),
                                      "authors": invariants(estimates | {"c1": 0.0, "c2": 0.0}, args.arms)},
               "segments": {}}
-    problem = sysid.read_problem(fit_args)
     for name, recording in recordings.items():
-        simulated, _ = sysid.predict(fit_args, problem, fitted["fitted"], recording)
         result["segments"][name] = [
             {"ours": mine, "authors": theirs} for mine, theirs in
-            zip(rms_per_arm(fitted_arm_angles(simulated, recording), recording),
+            zip(rms_per_arm(fitted_arm_angles(positions[str(paths[name])], recording), recording),
                 rms_per_arm(authors_prediction(recording, args.arms, estimates), recording))]
     result["total_seconds"] = round(time.perf_counter() - start, 1)
     print("what a free swing tells, per arm 1's inertia about its hinge J1 (this fit | the authors' estimates):")

@@ -487,6 +487,12 @@ class WindowFit:
 def fit(args: SysidArgs) -> dict:
     """The fit (``SysidArgs``): prints its progress and result, writes the plot, the preset and the result file, and
     returns the result."""
+    return fit_and_predict(args)[0]
+
+
+def fit_and_predict(args: SysidArgs) -> tuple[dict, dict[str, np.ndarray]]:
+    """``fit``, and the positions each predicted recording's episodes were simulated through (``predict``'s), by the
+    recording's path."""
     check_args(args)
     problem = read_problem(args)
     start = time.perf_counter()
@@ -496,7 +502,7 @@ def fit(args: SysidArgs) -> dict:
     output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
     labels = column_names(problem.roles, problem.sliders)[0]
     plot(output / "sysid_fit.png", problem.recording, fitter.starts, simulated, problem.dt, labels)
-    result["prediction"] = {}
+    result["prediction"], positions = {}, {}
     for number, path in enumerate([args.trajectory, *args.validate]):
         recording = problem.recording if number == 0 else read_trajectory(path, problem.roles, problem.sliders,
                                                                           problem.recording.action.shape[1])
@@ -507,7 +513,7 @@ def fit(args: SysidArgs) -> dict:
                     f"{path}: rows every {interval:g} s; they must come every {problem.dt:g} s, as the fitted "
                     "recording's")
         simulated, rms = predict(args, problem, result["fitted"], recording)
-        result["prediction"][str(path)] = rms
+        result["prediction"][str(path)], positions[str(path)] = rms, simulated
         in_sequence = replace(recording, time_s=np.arange(len(recording.time_s)) * problem.dt)  # episodes side by side
         plot(output / f"sysid_prediction_{number}.png", in_sequence, first_rows(recording), simulated, problem.dt,
              labels)
@@ -516,7 +522,7 @@ def fit(args: SysidArgs) -> dict:
     preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.table)
     print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
           f"(python train.py --task {args.task} --config {preset})")
-    return result
+    return result, positions
 
 
 def check_args(args: SysidArgs):
