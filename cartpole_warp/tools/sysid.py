@@ -574,14 +574,18 @@ def predict(args: SysidArgs, problem: Problem, fitted: dict, recording: Recordin
     env.set_state(torch.as_tensor(state, dtype=torch.float32, device=env.device))
     index = np.minimum(np.array(firsts)[None, :] + np.arange(rows)[:, None], len(recording.time_s) - 1)
     actions = torch.as_tensor(recording.action[index], dtype=torch.float32, device=env.device)
-    simulated = np.full((rows, n, len(problem.roles)), np.nan)
-    simulated[0] = recording.q[firsts]
-    alive = np.ones(n, dtype=bool)
-    for t in range(1, rows):
+    lengths_on_device, ended = torch.tensor(lengths, device=env.device), torch.zeros(n, dtype=torch.bool,
+                                                                                       device=env.device)
+    positions, alive = [env.joint_state()[0].clone()], [~ended]
+    for t in range(1, rows):  # on the env's device: one copy to the host at the end
         _, _, terminated, truncated, _ = env.step(actions[t - 1])
-        alive &= ~(terminated | truncated).cpu().numpy() & (t < np.array(lengths))
-        simulated[t, alive] = env.joint_state()[0].cpu().numpy()[alive]
+        ended |= terminated | truncated
+        positions.append(env.joint_state()[0].clone())
+        alive.append(~ended & (t < lengths_on_device))
     env.close()
+    simulated = torch.stack(positions).cpu().numpy().astype(np.float64)
+    simulated[~torch.stack(alive).cpu().numpy()] = np.nan
+    simulated[0] = recording.q[firsts]
     hinge = torch.tensor([not s for s in problem.sliders])
     rms = []
     for e, (first, length) in enumerate(zip(firsts, lengths)):
