@@ -217,13 +217,14 @@ def read_problem(args: SysidArgs) -> Problem:
     stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in settable}
     on_joint = [p.name for p in of_quantity(table, COM) if bodies[p.role_index].com_distance == 0.0]
     names = fitted_names(args.fit, settable, on_joint)
-    natural = natural_units(table, bodies, probe.physics.gravity_m_s2)
+    natural = natural_units(table, bodies, sliders, probe.physics.gravity_m_s2)
     units = {name: stage[name] if stage[name] > 0 else NATURAL_FRACTION * natural.get(name, 1.0) for name in names}
     probe.close()
     return Problem(recording, clear, names, stage, units, roles, sliders, table, dt, sim, held)
 
 
-def natural_units(table: tuple[Parameter, ...], bodies: list, gravity_m_s2: float) -> dict[str, float]:
+def natural_units(table: tuple[Parameter, ...], bodies: list, sliders: list[bool], gravity_m_s2: float
+                  ) -> dict[str, float]:
     """Each joint's damping and friction in its body's own terms: for a hinge the torque of gravity on the body held
     level, m g d (d: its centre of mass from the hinge, at least 1 cm), and the damping sqrt(J m g d) that takes as
     much (J: the inertia about the hinge), at the body's own rate sqrt(m g d / J); for a slider the body's weight and
@@ -232,7 +233,7 @@ def natural_units(table: tuple[Parameter, ...], bodies: list, gravity_m_s2: floa
     for p in of_quantity(table, DAMPING) + of_quantity(table, FRICTION):
         body = bodies[p.role_index]
         weight = body.mass * gravity_m_s2
-        if p.unit in (DAMPING.slider_unit, FRICTION.slider_unit):
+        if sliders[p.role_index]:
             units[p.name] = weight
             continue
         torque = weight * max(body.com_distance, 0.01)
