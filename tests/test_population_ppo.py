@@ -73,9 +73,10 @@ def population_of(references: list[PPO], schedule="adaptive", symmetry=True, **s
                          **EPOCHS, **settings)
 
 
-def rollout(population: PopulationPPO, references: list[PPO], data: torch.Generator):
+def rollout(population: PopulationPPO, references: list[PPO], data: torch.Generator) -> torch.Tensor:
     """One rollout of random observations, rewards, dones and time-outs (from ``data``) through the population and
-    each member's rsl-rl PPO (which samples the population's actions), then both compute returns."""
+    each member's rsl-rl PPO (which samples the population's actions), then both compute returns; the last
+    observations (K, N, O) out."""
     members = population.model.num_members
     obs = 2.0 * torch.randn(members, NUM_ENVS, NUM_OBS, generator=data) + 0.5
     for _ in range(NUM_STEPS):
@@ -96,6 +97,7 @@ def rollout(population: PopulationPPO, references: list[PPO], data: torch.Genera
         reference.compute_returns(td(obs[k]))
         torch.testing.assert_close(population.returns[k], reference.storage.returns.squeeze(-1), **CLOSE)
         torch.testing.assert_close(population.advantages[k], reference.storage.advantages.squeeze(-1), **CLOSE)
+    return obs
 
 
 def nudge_actors(population: PopulationPPO, references: list[PPO], data: torch.Generator):

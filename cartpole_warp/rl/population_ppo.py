@@ -72,9 +72,11 @@ class BatchedNormalizer(nn.Module):
         self.register_buffer("std", torch.ones(num_members, 1, num_obs))
         self.register_buffer("count", torch.zeros(num_members, dtype=torch.long))
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        """(K, B, O) observations normalised with each member's statistics."""
-        return (obs - self.mean) / (self.std + self.eps)
+    def forward(self, obs: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+        """(K, B, O) observations normalised with each member's statistics (``members``: of those K members)."""
+        if members is None:
+            return (obs - self.mean) / (self.std + self.eps)
+        return (obs - self.mean[members]) / (self.std[members] + self.eps)
 
     @torch.no_grad()
     def update(self, obs: torch.Tensor, active: torch.Tensor):
@@ -182,9 +184,10 @@ class BatchedActorCritic(nn.Module):
             for key, view in views[role].items():
                 view.copy_(state[key])
 
-    def _networks(self) -> tuple[list, torch.Tensor, list]:
-        """(actor layers [(weight (K, in, out), bias (K, 1, out))], std parameter (K, 1, A), critic layers)."""
-        chunks = iter(self.params.split(self._sizes, dim=1))
+    def _networks(self, members: torch.Tensor | None = None) -> tuple[list, torch.Tensor, list]:
+        """(actor layers [(weight (K, in, out), bias (K, 1, out))], std parameter (K, 1, A), critic layers), of every
+        member or of ``members`` (indices)."""
+        chunks = iter((self.params if members is None else self.params[members]).split(self._sizes, dim=1))
         actor = [(next(chunks).view(-1, n_in, n_out), next(chunks).view(-1, 1, n_out))
                  for _, n_in, n_out in self._layers["actor"]]
         std_param = next(chunks).unsqueeze(1)
@@ -205,11 +208,13 @@ class BatchedActorCritic(nn.Module):
             return std_param.clamp(*self.std_range)
         return std_param.clamp(*self.log_std_range).exp()
 
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(K, B, O) observations -> action means (K, B, A), std (K, 1, A), values (K, B)."""
-        actor, std_param, critic = self._networks()
-        actor_obs = obs if self.actor_normalizer is None else self.actor_normalizer(obs)
-        critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs)
+    def forward(self, obs: torch.Tensor, members: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(K, B, O) observations -> action means (K, B, A), std (K, 1, A), values (K, B); of every member, or of the
+        K ``members`` (indices)."""
+        actor, std_param, critic = self._networks(members)
+        actor_obs = obs if self.actor_normalizer is None else self.actor_normalizer(obs, members)
+        critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs, members)
         return self._mlp(actor_obs, actor), self._std(std_param), self._mlp(critic_obs, critic).squeeze(-1)
 
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
@@ -222,10 +227,10 @@ class BatchedActorCritic(nn.Module):
         """(K, A) the members' action standard deviations."""
         return self._std(self._networks()[1]).squeeze(1)
 
-    def values(self, obs: torch.Tensor) -> torch.Tensor:
-        """(K, B, O) observations -> the critics' values (K, B)."""
-        critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs)
-        return self._mlp(critic_obs, self._networks()[2]).squeeze(-1)
+    def values(self, obs: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+        """(K, B, O) observations -> the critics' values (K, B), of every member or of the K ``members``."""
+        critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs, members)
+        return self._mlp(critic_obs, self._networks(members)[2]).squeeze(-1)
 
     def update_normalization(self, obs: torch.Tensor, active: torch.Tensor):
         """rsl-rl's ``update_normalization`` of actor and critic with (K, B, O) observations, ``active`` members."""
@@ -361,47 +366,63 @@ class PopulationPPO:
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
                 index = permutation[:, i * mini_batch:(i + 1) * mini_batch, None].expand(-1, -1, rollout.shape[-1])
-                sums += self._gradient_step(rollout.gather(1, index))
+                sums += self._gradient_step(rollout.gather(1, index), i)
         self.model.update_normalization(self.observations.flatten(1, 2), self.active)
         self.step = 0
         value, surrogate, entropy = sums / (self.num_learning_epochs * self.num_mini_batches)
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
 
-    def _gradient_step(self, batch: torch.Tensor) -> torch.Tensor:
-        """One mini-batch (K, B, F) of every member's PPO loss, learning-rate rule, clip and Adam step; returns the
-        (3, K) value loss, surrogate loss and entropy."""
+    def _gradient_step(self, batch: torch.Tensor, mini_batch: int) -> torch.Tensor:
+        """Mini-batch ``mini_batch`` (K, B, F) of the epoch: every member's PPO loss, learning-rate rule, clip and Adam
+        step; returns the (3, K) value loss, surrogate loss and entropy."""
+        surrogate_loss, value_loss, entropy = self._losses(batch)
+        self._step(surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy, mini_batch)
+        return torch.stack((value_loss.detach(), surrogate_loss.detach(), entropy.detach()))
+
+    def _step(self, loss: torch.Tensor, mini_batch: int):
+        """Each member's gradient of its (K,) ``loss`` on mini-batch ``mini_batch`` of the epoch, clipped, and its Adam
+        step (a subclass may add losses of its own mini-batches)."""
+        (grad,) = torch.autograd.grad(loss.sum(), self.model.params)
+        self._clip_and_step(grad)
+
+    def _losses(self, batch: torch.Tensor, members: torch.Tensor | None = None, dual_clip: float | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """rsl-rl's PPO losses of a mini-batch (K, B, F) laid out as ``rollout``: the clipped surrogate loss, the
+        (clipped) value loss and the entropy, (K,) each, of every member (and its learning-rate rule on the batch's
+        KL) or of the K ``members`` (indices), each on its row of ``batch``. ``dual_clip`` c: a sample's surrogate
+        loss with a negative advantage A is at most -c A (dual-clip PPO: Ye et al., AAAI 2020)."""
         obs, actions, old_values, returns, advantages, old_log_prob, old_mean, old_std = batch.split(self._fields, -1)
         old_values, returns, advantages, old_log_prob = (
             t.squeeze(-1) for t in (old_values, returns, advantages, old_log_prob))
         if self.normalize_advantage_per_mini_batch:
             advantages = ((advantages - advantages.mean(1, keepdim=True))
                           / (advantages.std(1, keepdim=True) + 1e-8))
-        members, size = advantages.shape
+        rows, size = advantages.shape
         if self.mirror is not None:
             obs, actions = (
-                t.reshape(-1, members, size, t.shape[-1]).transpose(0, 1).reshape(members, -1, t.shape[-1])
-                for t in self.mirror(obs.reshape(members * size, -1), actions.reshape(members * size, -1)))
+                t.reshape(-1, rows, size, t.shape[-1]).transpose(0, 1).reshape(rows, -1, t.shape[-1])
+                for t in self.mirror(obs.reshape(rows * size, -1), actions.reshape(rows * size, -1)))
             copies = obs.shape[1] // size
             old_values, returns, advantages, old_log_prob = (
                 t.repeat(1, copies) for t in (old_values, returns, advantages, old_log_prob))
-        mean, std, values = self.model(obs)
+        mean, std, values = self.model(obs, members)
         log_prob = gaussian_log_prob(actions, mean, std)
         entropy = (0.5 + 0.5 * math.log(2 * math.pi) + std.log()).sum(-1).squeeze(1)
-        if self.adaptive:
+        if self.adaptive and members is None:
             with torch.no_grad():
                 self._adapt_learning_rate(gaussian_kl(old_mean, old_std, mean[:, :size], std).mean(1))
-        clip = self.clip_param[:, None]
+        clip = (self.clip_param if members is None else self.clip_param[members])[:, None]
         ratio = torch.exp(log_prob - old_log_prob)
-        surrogate_loss = torch.max(-advantages * ratio, -advantages * ratio.clamp(1.0 - clip, 1.0 + clip)).mean(1)
+        surrogate = torch.max(-advantages * ratio, -advantages * ratio.clamp(1.0 - clip, 1.0 + clip))
+        if dual_clip is not None:
+            surrogate = torch.where(advantages < 0, torch.min(surrogate, -dual_clip * advantages), surrogate)
+        surrogate_loss = surrogate.mean(1)
         if self.use_clipped_value_loss:
             value_clipped = old_values + (values - old_values).clamp(-clip, clip)
             value_loss = torch.max((values - returns).pow(2), (value_clipped - returns).pow(2)).mean(1)
         else:
             value_loss = (returns - values).pow(2).mean(1)
-        loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
-        (grad,) = torch.autograd.grad(loss.sum(), self.model.params)
-        self._clip_and_step(grad)
-        return torch.stack((value_loss.detach(), surrogate_loss.detach(), entropy.detach()))
+        return surrogate_loss, value_loss, entropy
 
     def _adapt_learning_rate(self, kl_mean: torch.Tensor):
         """rsl-rl's rule per active member: divide by 1.5 (not below 1e-5) above twice the target KL, multiply by 1.5
