@@ -39,7 +39,7 @@ from .cli import (
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
-from .rl.config import TrainConfig, apg_settings, checked, device_settings, on_gpu, train_config
+from .rl.config import TrainConfig, checked, device_settings, learner_settings, on_gpu, train_config
 from .rl.distributed import Ranks
 from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
@@ -263,9 +263,10 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         here, other = ("GPU", "CPU") if on_gpu(training.cfg.env.device) else ("CPU", "GPU")
         print(f"on a {here} the task's settings: {', '.join(f'{name} {value}' for name, value in chosen.items())} "
               f"(its {other} settings differ; a flag changes either)", flush=True)
-    if checkpoint is None and (chosen := apg_settings(training.cfg)):
-        print(f"with --learner apg the task's settings: {', '.join(f'{n} {v}' for n, v in chosen.items())} "
-              "(a flag changes any)", flush=True)
+    if checkpoint is None and (chosen := learner_settings(training.cfg)):
+        settings = ", ".join(f"{name} {value}" for name, value in chosen.items())
+        print(f"with --learner {training.cfg.agent.learner} the task's settings: {settings} (a flag changes any)",
+              flush=True)
     hooks = IterationHooks()
     if args.viewer == "viser":
         from .viz.web import TrainingView

@@ -49,7 +49,7 @@ def test_the_critics_targets_are_lambda_returns(case):
 
 def test_the_learner_chooses_its_own_settings_and_says_so(tmp_path):
     cfg = train_config("cartpole-balance", learner="apg")
-    chosen = tasks.get("cartpole-balance").apg_defaults
+    chosen = tasks.get("cartpole-balance").learner_defaults["apg"]
     assert cfg.agent.learner == "apg" and cfg.env.num_envs == chosen["env"]["num_envs"] != train_config().env.num_envs
     assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"]
     result = call_main("train", "--learner", "apg", "--num-envs", "8", "--max-iterations", "1", "--device", "cpu",
@@ -100,7 +100,7 @@ def test_every_state_task_trains_a_few_windows_and_resumes(tmp_path, task):
 def test_the_balance_trains_to_solved_by_backpropagation_and_plays(tmp_path):
     """The learner's defaults on the balance: solved (the same rule, the same evaluation) and replayed by play.py."""
     summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance", "--learner", "apg")
-    assert summary["num_envs"] == tasks.get("cartpole-balance").apg_defaults["env"]["num_envs"]
+    assert summary["num_envs"] == tasks.get("cartpole-balance").learner_defaults["apg"]["env"]["num_envs"]
     assert played["time_limit_fraction"] >= 0.95 and played["mean_reward_per_step"] >= 0.9
 
 
@@ -109,7 +109,7 @@ def test_a_presets_settings_win_over_the_learners_and_flags_over_both():
     learner's 64 envs instead of the tutorial's one)."""
     from cartpole_warp.train import resolve
 
-    chosen = tasks.get("cartpole-balance").apg_defaults
+    chosen = tasks.get("cartpole-balance").learner_defaults["apg"]
     cfg = train_config("cartpole-balance", "tutorial", learner="apg")
     assert cfg.env.num_envs == 1 != chosen["env"]["num_envs"], "the preset's env count"
     assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"], "the learner's, the preset silent"

@@ -67,7 +67,7 @@ def test_a_variant_of_other_flags_runs_with_its_own_defaults(tmp_path, capsys):
                  "--no-stop-when-solved", "--log-dir", str(tmp_path)]) == 0
     assert "| `--learner apg --agent.apg.gamma 0.98` | 0 | not solved |" in capsys.readouterr().out
     summary = json.loads(next(tmp_path.rglob("summary.json")).read_text())
-    assert summary["num_envs"] == tasks.get("cartpole-balance").apg_defaults["env"]["num_envs"]
+    assert summary["num_envs"] == tasks.get("cartpole-balance").learner_defaults["apg"]["env"]["num_envs"]
 
 
 def test_a_sweep_trains_its_seeds_as_a_population_and_says_when_a_variant_cannot(tmp_path, capsys):

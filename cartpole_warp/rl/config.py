@@ -63,7 +63,7 @@ class TrainConfig(RunSettings, Generic[TaskT]):
                 f"({self.eval.max_interval})")
         rollout = self.env.num_envs * self.agent.num_steps_per_env
         mini_batches = self.agent.algorithm.num_mini_batches
-        require(self.agent.learner != "ppo" or rollout % mini_batches == 0,
+        require(self.agent.learner == "apg" or rollout % mini_batches == 0,
                 f"agent.algorithm.num_mini_batches ({mini_batches}) must divide num_envs * agent.num_steps_per_env "
                 f"({rollout})")
         return self
@@ -73,8 +73,8 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
                  learner: str | None = None) -> TrainConfig:
     """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
     refuses a preset for another task; on ``device`` where given), then the dataclass defaults, the task's (with its
-    ``gpu_defaults`` or ``cpu_defaults`` by the env's device, then its ``apg_defaults`` where ``learner`` (the flag)
-    or the preset says 'apg') and the whole preset again, so that a preset's setting wins over the task's and the
+    ``gpu_defaults`` or ``cpu_defaults`` by the env's device, then its ``learner_defaults`` of the learner ``learner``
+    (the flag) or the preset names) and the whole preset again, so that a preset's setting wins over the task's and the
     learner's choices (flags may still change it: ``validate`` after them)."""
     preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
     env = tasks.env_config(task, preset, preset_data=preset_data, device=device)
@@ -83,8 +83,9 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
     data = merge(dataclasses.asdict(base), rest)
     data = merge(data, device_defaults(base.task_spec, env.device))
-    if (learner or preset_data.get("agent", {}).get("learner")) == "apg":
-        data = merge(merge(data, base.task_spec.apg_defaults), {"agent": {"learner": "apg"}})
+    chosen = learner or preset_data.get("agent", {}).get("learner")
+    if chosen in base.task_spec.learner_defaults:
+        data = merge(merge(data, base.task_spec.learner_defaults[chosen]), {"agent": {"learner": chosen}})
     if preset is not None:  # the preset over the task's and the learner's choices, its env section too
         data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
@@ -111,10 +112,10 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
     return device_settings(cfg) if on_gpu(cfg.env.device) else {}
 
 
-def apg_settings(cfg: TrainConfig) -> dict[str, object]:
-    """The settings the task chooses for ``--learner apg`` (``Task.apg_defaults``), as ``gpu_settings``; {} where
-    ``cfg`` trains with PPO."""
-    return chosen_settings(cfg, cfg.task_spec.apg_defaults) if cfg.agent.learner == "apg" else {}
+def learner_settings(cfg: TrainConfig) -> dict[str, object]:
+    """The settings the task chooses for ``cfg``'s learner (``Task.learner_defaults``), as ``gpu_settings``; {} where
+    it chooses none (PPO)."""
+    return chosen_settings(cfg, cfg.task_spec.learner_defaults.get(cfg.agent.learner, {}))
 
 
 def chosen_settings(cfg: TrainConfig, defaults: dict) -> dict[str, object]:
@@ -157,5 +158,5 @@ def load_train_config(data: dict, where: str) -> TrainConfig:
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",
-           "TrainConfig", "apg_settings", "checked", "device_settings", "gpu_settings", "load_train_config",
+           "TrainConfig", "checked", "device_settings", "gpu_settings", "learner_settings", "load_train_config",
            "train_config", "with_env_preset"]

@@ -24,7 +24,8 @@ if TYPE_CHECKING:
     from .config import TrainConfig
     from .distributed import Ranks
 
-LEARNERS = {"ppo": "cartpole_warp.rl.ppo_learner:PpoLearner", "apg": "cartpole_warp.rl.apg:ApgLearner"}
+LEARNERS = {"ppo": "cartpole_warp.rl.ppo_learner:PpoLearner", "apg": "cartpole_warp.rl.apg:ApgLearner",
+            "sapg": "cartpole_warp.rl.sapg:SapgLearner"}
 """Each learner's class by name, imported when asked for (the backpropagation learner imports the differentiable
 rollout, which a PPO run need not load)."""
 

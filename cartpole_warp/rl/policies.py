@@ -109,7 +109,7 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -
     cfg = dataclasses.asdict(agent)
     cnn = cfg["actor"].pop("cnn")
     for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph", "learner",
-                "apg"):
+                "apg", "sapg"):
         del cfg[key]
     del cfg["algorithm"]["symmetry"]
     if agent.algorithm.symmetry and mirror:

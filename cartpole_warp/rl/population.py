@@ -20,6 +20,7 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 # isort: split
 import dataclasses
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -96,16 +97,21 @@ def members_of(seeds: list[int], vary: list[str] = ()) -> list[Member]:
     return [Member(seed, tuple(settings)) for settings in combinations for seed in seeds]
 
 
-def check_population(cfg: TrainConfig, members: list[Member]):
-    """ConfigError in one line where ``cfg`` cannot train as a population (``PopulationPPO``'s networks are rsl-rl's
-    MLPs on the task's state, updated in float32 by rsl-rl's PPO)."""
-    problems = {
-        "--learner apg (populations train with PPO)": cfg.agent.learner != "ppo",
-        "a task that observes camera frames (the population's networks are MLPs)": cfg.env.camera.enabled,
+def batched_ppo_problems(cfg: TrainConfig) -> dict[str, bool]:
+    """What keeps ``cfg`` from training on ``PopulationPPO`` (whose networks are rsl-rl's MLPs on the task's state,
+    updated in float32 by rsl-rl's PPO), in words, each with whether ``cfg`` has it."""
+    return {
+        "a task that observes camera frames (the batched networks are MLPs)": cfg.env.camera.enabled,
         "agent.algorithm.use_mixed_precision": cfg.agent.algorithm.use_mixed_precision,
         "agent.torch_compile_mode": cfg.agent.torch_compile_mode is not None,
-        "console rsl_rl (the population prints its own lines)": cfg.console == "rsl_rl",
+        "console rsl_rl (the batched rollout keeps no per-step log)": cfg.console == "rsl_rl",
     }
+
+
+def check_population(cfg: TrainConfig, members: list[Member]):
+    """ConfigError in one line where ``cfg`` cannot train as a population (``batched_ppo_problems``)."""
+    problems = {f"--learner {cfg.agent.learner} (populations train with PPO)": cfg.agent.learner != "ppo",
+                **batched_ppo_problems(cfg)}
     named = [what for what, present in problems.items() if present]
     if named:
         raise ConfigError(f"a population of {cfg.task} cannot train with {'; '.join(named)}")
@@ -145,9 +151,10 @@ class PopulationLearner:
     ``actors`` and ``critics`` are the members' rsl-rl networks, initialised as their solo runs' (``torch`` seeded with
     each member's seed; the action noise and mini-batches are drawn after ``torch`` is seeded with ``seed``, so that
     no member's draws depend on another's seed); ``MemberLearner`` copies the trained weights back into them where a
-    member is judged, saved or exported."""
+    member is judged, saved or exported. ``ppo_class``: the batched update, built as ``PopulationPPO``."""
 
-    def __init__(self, env: RslRlVecEnv, cfgs: list[TrainConfig], rsl_rl_cfg: dict, seed: int):
+    def __init__(self, env: RslRlVecEnv, cfgs: list[TrainConfig], rsl_rl_cfg: dict, seed: int,
+                 ppo_class: Callable[..., PopulationPPO] = PopulationPPO):
         self.env, self.device, self.num_members = env, env.device, len(cfgs)
         self.num_envs = env.num_envs // self.num_members
         """Envs per member."""
@@ -164,7 +171,7 @@ class PopulationLearner:
         settings = {name: [getattr(cfg.agent.algorithm, name) for cfg in cfgs] for name in VARIABLE_SETTINGS}
         algorithm = cfgs[0].agent.algorithm
         mirrored = algorithm.symmetry and env.obs_mirror is not None
-        self.ppo = PopulationPPO(
+        self.ppo = ppo_class(
             BatchedActorCritic.from_members(self.actors, self.critics), self.num_envs, self.num_steps_per_env,
             num_learning_epochs=algorithm.num_learning_epochs, num_mini_batches=algorithm.num_mini_batches,
             use_clipped_value_loss=algorithm.use_clipped_value_loss, schedule=algorithm.schedule,

@@ -158,7 +158,7 @@ class Training:
         start = time.perf_counter()
         env_cfg = learner_class(cfg.agent.learner).env_config(cfg, ranks.env_config(cfg.env, torch.cuda.device_count()),
                                                               ranks)
-        check_memory(cfg, resolve_device(env_cfg.device))
+        check_memory(dataclasses.replace(cfg, env=env_cfg), resolve_device(env_cfg.device))
         torch.manual_seed(env_cfg.seed)
         cfg.apply_torch_threads()
         self.task = cfg.task_spec

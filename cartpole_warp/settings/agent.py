@@ -18,9 +18,9 @@ Schedule = Literal["adaptive", "fixed"]
 Algorithm = Literal["PPO", "SyncFreePPO"]
 """rsl-rl's ``PPO``, or ``SyncFreePPO`` (``cartpole_warp.rl.ppo``: the same update without host syncs)."""
 MetricsLogger = Literal["tensorboard", "wandb", "none"]
-Learner = Literal["ppo", "apg"]
-"""'ppo' (rsl-rl's PPO on the env's transitions) or 'apg' (``rl.apg``: analytic policy gradients through the
-simulator)."""
+Learner = Literal["ppo", "apg", "sapg"]
+"""'ppo' (rsl-rl's PPO on the env's transitions), 'apg' (``rl.apg``: analytic policy gradients through the
+simulator) or 'sapg' (``rl.sapg``: a leader PPO policy learning from its followers' envs too)."""
 
 
 @dataclass
@@ -156,6 +156,29 @@ class ApgConfig:
 
 
 @dataclass
+class SapgConfig:
+    """Split and aggregate policy gradients (``rl.sapg``, after SAPG: Singla, Agarwal and Pathak, ICML 2024): the run's
+    envs are ``num_blocks`` blocks of ``env.num_envs`` envs, each block a policy's: block 0 the leader's, the others
+    followers'. Every policy learns rsl-rl's PPO (``algorithm``'s settings) on its own block; the leader also learns
+    from one follower's block per iteration, drawn at random, through importance-weighted clipped surrogate and value
+    losses with one-step targets of its own critic. The leader is the run's policy: evaluated, saved and exported."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    num_blocks: Annotated[int, pydantic.Field(ge=2)] = 4
+    """Policies (the leader and ``num_blocks - 1`` followers), each with ``env.num_envs`` envs."""
+    off_policy_coef: NonNegative = 1.0
+    """Weight of the leader's losses on the follower's block beside those on its own (0: the leader learns PPO)."""
+    dual_clip: Annotated[float, pydantic.Field(gt=1)] | None = 3.0
+    """On the follower's samples, a negative advantage's surrogate loss bounded by ``dual_clip`` times its size
+    (dual-clip PPO: a follower's action the leader finds far likelier than the follower did cannot dominate the
+    loss; None: unbounded, as PPO's)."""
+    follower_entropy_coefs: list[NonNegative] = field(default_factory=list)
+    """Each follower's entropy bonus, ``num_blocks - 1`` values (empty: ``algorithm.entropy_coef`` for every one);
+    SAPG's exploration by entropy gives the followers larger bonuses than the leader's."""
+
+
+@dataclass
 class RunnerConfig:
     """rsl-rl's ``OnPolicyRunner`` configuration (its ``train_cfg``), plus the run's length and name."""
 
@@ -189,8 +212,11 @@ class RunnerConfig:
     learner: Learner = "ppo"
     """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO, whose settings are ``algorithm`` (rsl-rl's name for
     its algorithm's section); 'apg', analytic policy gradients through the simulator in SHAC's short-horizon form,
-    whose settings are ``apg`` (state tasks on SolverFeatherstone, one process)."""
+    whose settings are ``apg`` (state tasks on SolverFeatherstone, one process); 'sapg', a leader and followers
+    learning PPO on blocks of the envs, the leader from the followers' blocks too, whose settings are ``sapg``
+    (besides ``algorithm``; state tasks, one process)."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     apg: ApgConfig = field(default_factory=ApgConfig)
+    sapg: SapgConfig = field(default_factory=SapgConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)

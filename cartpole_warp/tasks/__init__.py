@@ -31,10 +31,19 @@ APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max
                                                     "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
                                                     "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
                 "eval": {"in_step": False}}
-"""A task's settings for ``--learner apg`` unless it names its own (``Task.apg_defaults``): 64 envs, windows of 32
+"""A task's settings for ``--learner apg`` unless it names its own (``Task.learner_defaults``): 64 envs, windows of 32
 env steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on every device (a
 task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself);
 chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
+
+SAPG_DEFAULTS = {"eval": {"in_step": False}}
+"""A task's settings for ``--learner sapg`` unless it names its own: evaluations on envs of their own (the learner's
+envs are its policies' blocks)."""
+
+
+def learner_defaults(**by_learner: dict) -> dict[str, dict]:
+    """``Task.learner_defaults``: the given learners' settings (``apg=...``), the generic ones for the others."""
+    return {"apg": APG_DEFAULTS, "sapg": SAPG_DEFAULTS} | by_learner
 
 
 @dataclass(frozen=True)
@@ -63,9 +72,10 @@ class Task:
     """Overrides of ``defaults`` (``agent`` and run sections, no ``env``) where the run's device is a CPU, as
     ``gpu_defaults`` where it is a GPU (there a network's width costs little; on a CPU every product and activation
     costs its samples). train.py names them in its first lines; a variant inherits them as ``gpu_defaults``."""
-    apg_defaults: dict = field(default_factory=lambda: APG_DEFAULTS)
-    """Overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run trains with ``--learner apg``
-    (analytic policy gradients: few envs, longer windows); train.py names them in its first lines."""
+    learner_defaults: dict[str, dict] = field(default_factory=learner_defaults)
+    """Per learner other than 'ppo', overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run
+    trains with ``--learner NAME`` (``apg``: analytic policy gradients, few envs and longer windows; ``sapg``);
+    train.py names them in its first lines."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
 
@@ -85,8 +95,9 @@ def register(task: Task) -> Task:
     for name, defaults in (("gpu_defaults", task.gpu_defaults), ("cpu_defaults", task.cpu_defaults)):
         raise_config_errors(f"task {task.name!r}: {name}", overrides_errors(defaults)
                             + ["env settings do not depend on the device"] * ("env" in defaults))
-    raise_config_errors(f"task {task.name!r}: apg_defaults",
-                        overrides_errors(task.apg_defaults, EnvConfig[task.env_class.config_class]))
+    for learner, defaults in task.learner_defaults.items():
+        raise_config_errors(f"task {task.name!r}: learner_defaults[{learner!r}]",
+                            overrides_errors(defaults, EnvConfig[task.env_class.config_class]))
     _TASKS[task.name] = task
     return task
 

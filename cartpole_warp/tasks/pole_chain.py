@@ -6,7 +6,7 @@ docstring."""
 from dataclasses import dataclass, replace
 
 from ..settings.config import Name, merge
-from . import APG_DEFAULTS, SolvedRule, register, swingup
+from . import SolvedRule, learner_defaults, register, swingup
 
 
 @dataclass
@@ -78,5 +78,5 @@ for env_class, words, min_reward_per_step, width, steps_per_env, gpu_defaults, g
                                                          "actor": networks, "critic": networks},
                                                "eval": {"max_interval": 100}}),
         gpu_defaults=gpu_defaults, cpu_defaults={},  # the single pole's were not measured on the chains
-        apg_defaults=APG_DEFAULTS,  # the swing-up's were not measured here
+        learner_defaults=learner_defaults(),  # the swing-up's were not measured here
         gym_ids={f"cartpole_warp/{gym_id}-v0": None}))

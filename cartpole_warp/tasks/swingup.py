@@ -12,7 +12,7 @@ import warp as wp
 
 from ..engine.kernels import END_NONE, TaskFunctions
 from ..settings.config import Finite, NonNegative, Positive, merge
-from . import APG_DEFAULTS, SolvedRule, Task, register
+from . import APG_DEFAULTS, SolvedRule, Task, learner_defaults, register
 from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 
@@ -160,7 +160,7 @@ TASK = register(Task(
     cpu_defaults={"agent": {"actor": {"hidden_dims": [16, 16]}, "critic": {"hidden_dims": [16, 16]}}},
     # analytic policy gradients: wider networks than PPO's (fewer iterations to solved), a budget of 1.5x the slowest
     # seed that solved (docs/benchmarks.md)
-    apg_defaults=merge(APG_DEFAULTS, {"agent": {"max_iterations": 1100, "actor": {"hidden_dims": [64, 64]},
-                                                "critic": {"hidden_dims": [64, 64]}}}),
+    learner_defaults=learner_defaults(apg=merge(APG_DEFAULTS, {"agent": {
+        "max_iterations": 1100, "actor": {"hidden_dims": [64, 64]}, "critic": {"hidden_dims": [64, 64]}}})),
     gym_ids={"cartpole_warp/CartpoleSwingup-v0": None},
 ))

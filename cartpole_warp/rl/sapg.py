@@ -1,0 +1,164 @@
+"""``--learner sapg``: split and aggregate policy gradients (after SAPG: Singla, Agarwal and Pathak, ICML 2024).
+
+The run's env is ``agent.sapg.num_blocks`` blocks of ``env.num_envs`` envs, block k policy k's. Every policy learns
+rsl-rl's PPO on its own block, all as one batched computation (``population.PopulationLearner``); policy 0, the leader,
+also learns from one follower's block per iteration (``LeaderFollowerPPO``). The leader is the run's policy: the
+runner judges, saves and exports it (``SapgLearner``), so the run's folder plays and exports as a PPO run's.
+"""
+
+from __future__ import annotations
+
+from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
+import dataclasses
+import functools
+
+import torch
+from tensordict import TensorDict
+
+from ..evaluation.statistics import EpisodeStats
+from ..settings.config import ConfigError, EnvConfig
+from ..wrappers.rsl_rl import RslRlVecEnv
+from .config import TrainConfig
+from .distributed import Ranks
+from .population import Member, MemberLearner, PopulationLearner, batched_ppo_problems
+from .population_ppo import BatchedActorCritic, PopulationPPO
+
+FOLLOWER_SEED_STRIDE = 1 << 20
+"""Follower k of a run of seed s initialises its networks as a run of seed s + k * FOLLOWER_SEED_STRIDE would."""
+
+
+class LeaderFollowerPPO(PopulationPPO):
+    """``PopulationPPO`` whose member 0, the leader, also learns from member j's rollout, j drawn among the followers
+    1 .. K-1 each iteration:
+
+        L_leader = L_PPO(own rollout) + off_policy_coef * (L_surrogate + value_loss_coef * L_value)(j's rollout)
+
+    On j's samples the ratio is pi_leader(a|s) / pi_j(a|s) (j's policy acted), clipped as PPO's with the leader's
+    ``clip_param``; the value targets are one-step targets of the leader's critic as the rollout ended, r + gamma (1 -
+    done) V(s'), the advantages their TD errors minus V(s), normalised over the rollout (as PPO's, unless
+    ``normalize_advantage_per_mini_batch``), the value loss clipped around V(s) as PPO's; r is j's reward as stored (a
+    time-out bootstrapped with j's critic). The mini-batches of j's samples are a permutation of their own, as many
+    and as large as the leader's. The followers learn PPO alone; with ``off_policy_coef`` 0 the update is
+    ``PopulationPPO``'s."""
+
+    def __init__(self, model: BatchedActorCritic, num_envs: int, num_steps: int, *, off_policy_coef: float = 1.0,
+                 dual_clip: float | None = None, **settings):
+        if model.num_members < 2:
+            raise ValueError("a leader needs at least one follower: two members or more")
+        super().__init__(model, num_envs, num_steps, **settings)
+        self.off_policy_coef, self.dual_clip = off_policy_coef, dual_clip
+        device = model.params.device
+        self.leader = torch.zeros(1, dtype=torch.long, device=device)
+        self.follower = torch.ones(1, dtype=torch.long, device=device)
+        """(1,) the follower whose rollout the leader learns from in this iteration (drawn by ``compute_returns``)."""
+        self.off_policy = torch.zeros(num_steps, num_envs, self.rollout.shape[-1], device=device)
+        """(T, N, F) laid out as a member's ``rollout``: the follower's observations, actions, log-probabilities,
+        means and stds, with the leader's values, targets and advantages."""
+        self._off_permutation = torch.arange(num_steps * num_envs, device=device)
+
+    @torch.no_grad()
+    def compute_returns(self, last_obs: torch.Tensor):
+        """``PopulationPPO``'s returns, then a follower drawn and the leader's targets and advantages on its rollout."""
+        super().compute_returns(last_obs)
+        self.follower.random_(1, self.model.num_members)
+        self.off_policy.copy_(self.rollout.index_select(0, self.follower)[0])
+        obs, _, values, returns, advantages, *_ = (t.squeeze(-1) for t in self.off_policy.split(self._fields, -1))
+        steps, envs = self.num_steps, self.num_envs
+        values.copy_(self.model.values(obs.reshape(1, steps * envs, -1), self.leader).view(steps, envs))
+        last_values = self.model.values(last_obs.index_select(0, self.follower), self.leader)
+        rewards, dones = (t.index_select(0, self.follower)[0] for t in (self.rewards, self.dones))
+        returns.copy_(rewards + (1.0 - dones) * self.gamma[0] * torch.cat((values[1:], last_values)))
+        advantages.copy_(returns - values)
+        if not self.normalize_advantage_per_mini_batch:
+            advantages.copy_((advantages - advantages.mean()) / (advantages.std() + 1e-8))
+
+    def update(self, permutation: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """``PopulationPPO.update``, the leader's mini-batches of the follower's rollout drawn first."""
+        self._off_permutation = torch.rand(self.num_steps * self.num_envs, device=self.rollout.device).argsort()
+        return super().update(permutation)
+
+    def _step(self, loss: torch.Tensor, mini_batch: int):
+        """The leader's loss on mini-batch ``mini_batch`` of the follower's rollout added to its own, then the step."""
+        size = self.num_envs * self.num_steps // self.num_mini_batches
+        rows = self._off_permutation[mini_batch * size:(mini_batch + 1) * size]
+        surrogate, value, _ = self._losses(self.off_policy.flatten(0, 1)[rows][None], self.leader, self.dual_clip)
+        off_policy_loss = self.off_policy_coef * (surrogate + self.value_loss_coef[self.leader] * value)
+        super()._step(torch.cat((loss[:1] + off_policy_loss, loss[1:])), mini_batch)
+
+
+class SapgLearner:
+    """The leader of a ``LeaderFollowerPPO`` population as the runner's learner (``rl.learner.Learner``): the
+    runner's episodes, losses, learning rate and action noise are the leader's block's, its evaluations judge the
+    leader, and a checkpoint holds the leader in rsl-rl's format (``play.py`` and the exports read it as a PPO run's)
+    with every policy's state besides (``sapg_state_dict``, which ``--resume`` restores)."""
+
+    @staticmethod
+    def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
+        """``num_blocks`` times the envs; ConfigError where the run cannot train this way."""
+        sapg = cfg.agent.sapg
+        if sapg.follower_entropy_coefs and len(sapg.follower_entropy_coefs) != sapg.num_blocks - 1:
+            raise ConfigError(f"agent.sapg.follower_entropy_coefs: {len(sapg.follower_entropy_coefs)} values for "
+                              f"{sapg.num_blocks - 1} followers (agent.sapg.num_blocks - 1)")
+        problems = {"torchrun (its blocks learn in one process)": ranks.distributed,
+                    "eval.in_step (its envs are its policies' blocks)": cfg.eval.in_step, **batched_ppo_problems(cfg)}
+        named = [what for what, present in problems.items() if present]
+        if named:
+            raise ConfigError(f"--learner sapg cannot train with {'; '.join(named)}")
+        return dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs * sapg.num_blocks)
+
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
+        sapg, seed = cfg.agent.sapg, cfg.env.seed
+        entropy = sapg.follower_entropy_coefs or [cfg.agent.algorithm.entropy_coef] * (sapg.num_blocks - 1)
+        members = [Member(seed)] + [Member(seed + k * FOLLOWER_SEED_STRIDE, (("entropy_coef", coef),))
+                                    for k, coef in enumerate(entropy, start=1)]
+        self.population = PopulationLearner(
+            env, [member.config(cfg) for member in members], rsl_rl_cfg, seed,
+            ppo_class=functools.partial(LeaderFollowerPPO, off_policy_coef=sapg.off_policy_coef,
+                                        dual_clip=sapg.dual_clip))
+        self.leader = MemberLearner(self.population, 0)
+        self.env, self.clock, self.on_step = env, self.population.clock, None
+        self.episodes, self.actor = self.leader.episodes, self.leader.actor
+
+    @property
+    def learning_rate(self) -> float:
+        return self.leader.learning_rate
+
+    @property
+    def action_std(self) -> torch.Tensor:
+        return self.leader.action_std
+
+    def begin(self, first_iteration: int, end_iteration: int):
+        """Nothing: every policy trains from the first iteration."""
+
+    def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
+        """Every policy's iteration; the leader's losses out."""
+        obs, losses = self.population.iteration(obs, it)
+        return obs, self.population.read(losses).losses[0]
+
+    def train_mode(self):
+        self.leader.train_mode()
+
+    def eval_mode(self):
+        self.leader.eval_mode()
+
+    def state_dict(self) -> dict:
+        """The leader's checkpoint as a PPO run's, and every policy's networks, normalisers and optimiser state."""
+        ppo = self.population.ppo
+        return self.leader.state_dict() | {"sapg_state_dict": {
+            "model": ppo.model.state_dict(), "exp_avg": ppo.exp_avg, "exp_avg_sq": ppo.exp_avg_sq,
+            "adam_steps": ppo.adam_steps, "learning_rate": ppo.learning_rate}}
+
+    @torch.no_grad()
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+        """Every policy's state where ``loaded`` holds it (a sapg checkpoint); else the leader's networks."""
+        if "sapg_state_dict" not in loaded:
+            raise ConfigError("--learner sapg resumes only a sapg run's checkpoint (it holds every policy's state)")
+        state, ppo = loaded["sapg_state_dict"], self.population.ppo
+        ppo.model.load_state_dict(state["model"], strict=strict)
+        for name in ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate"):
+            getattr(ppo, name).copy_(state[name])
+
+    def release_graphs(self):
+        self.population.release_graphs()
