@@ -210,11 +210,9 @@ class RunnerConfig:
     torch_compile_mode: Literal["default", "max-autotune-no-cudagraphs"] | None = None
     """rsl-rl's torch.compile of the actor and critic (None: not compiled)."""
     learner: Learner = "ppo"
-    """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO, whose settings are ``algorithm`` (rsl-rl's name for
-    its algorithm's section); 'apg', analytic policy gradients through the simulator in SHAC's short-horizon form,
-    whose settings are ``apg`` (state tasks on SolverFeatherstone, one process); 'sapg', a leader and followers
-    learning PPO on blocks of the envs, the leader from the followers' blocks too, whose settings are ``sapg``
-    (besides ``algorithm``; state tasks, one process)."""
+    """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO (settings ``algorithm``); 'apg', analytic policy
+    gradients through the simulator (``apg``); 'sapg', a PPO leader learning from followers' envs too (``sapg`` and
+    ``algorithm``); docs/training.md says what each trains."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     apg: ApgConfig = field(default_factory=ApgConfig)
     sapg: SapgConfig = field(default_factory=SapgConfig)
