@@ -59,7 +59,8 @@ def pytest_configure(config):
 
 
 SLOWEST_FILES_FIRST = ("test_train_cli.py", "test_startup.py", "test_env.py", "test_browser.py", "test_rendering.py",
-                       "test_physics.py", "test_apg.py", "test_packaging.py", "test_population.py", "test_sweep.py",
+                       "test_physics.py", "test_apg.py", "test_packaging.py", "test_population.py", "test_sapg.py",
+                       "test_sweep.py",
                        "test_in_step.py", "test_viewer.py", "test_sb3_env.py", "test_gym_env.py", "test_promises.py",
                        "test_examples.py", "test_multiarm.py", "test_distributed.py", "test_sysid.py",
                        "test_reproducible.py")
