@@ -60,10 +60,9 @@ def pytest_configure(config):
 
 SLOWEST_FILES_FIRST = ("test_train_cli.py", "test_startup.py", "test_env.py", "test_browser.py", "test_rendering.py",
                        "test_physics.py", "test_apg.py", "test_packaging.py", "test_population.py", "test_sapg.py",
-                       "test_sweep.py",
-                       "test_in_step.py", "test_viewer.py", "test_sb3_env.py", "test_gym_env.py", "test_promises.py",
-                       "test_examples.py", "test_multiarm.py", "test_distributed.py", "test_sysid.py",
-                       "test_reproducible.py")
+                       "test_sweep.py", "test_in_step.py", "test_viewer.py", "test_sb3_env.py", "test_gym_env.py",
+                       "test_promises.py", "test_examples.py", "test_multiarm.py", "test_distributed.py",
+                       "test_sysid.py", "test_reproducible.py")
 """The test files that take longest, longest first (measured: --durations=0): pyproject's ``--dist loadfile
 --no-loadscope-reorder`` hands whole files to the test processes in this order, so that they end together."""
 
