@@ -72,7 +72,7 @@ def test_a_follower_that_acts_as_the_leader_has_importance_weights_of_one():
     rollout(ppo, [], torch.Generator().manual_seed(7))
     assert ppo.follower.item() == 1
     obs, actions, values, _, _, log_prob, _, _ = (t.flatten(0, 1) for t in ppo.off_policy.split(ppo._fields, -1))
-    mean, std, _ = ppo.model(obs[None], ppo.leader)
+    mean, std, _ = ppo.model(obs[None], ppo.leader_index)
     ratio = torch.exp(gaussian_log_prob(actions[None], mean, std) - log_prob.squeeze(-1))
     torch.testing.assert_close(ratio, torch.ones_like(ratio), rtol=0, atol=1e-6)
     torch.testing.assert_close(values.squeeze(-1), ppo.values[1].flatten(), rtol=0, atol=1e-6)
@@ -88,20 +88,39 @@ def leaders_networks(ppo: LeaderFollowerPPO) -> tuple[MLPModel, MLPModel, torch.
     return actor, critic, actor_state["distribution.std_param"]
 
 
-@pytest.mark.parametrize("dual_clip", [None, 1.5])
+def copy_state(source: PopulationPPO, target: PopulationPPO):
+    """``target`` made to hold ``source``'s networks, normalisers, optimiser state and rollout."""
+    target.model.load_state_dict(source.model.state_dict())
+    for name in ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate", "rollout", "rewards", "dones"):
+        getattr(target, name).copy_(getattr(source, name))
+
+
+def second_iteration(dual_clip=None, coef=0.7) -> tuple[LeaderFollowerPPO, PopulationPPO, torch.Tensor]:
+    """A leader and two followers after one iteration and the rollout of a second (the normalisers no longer at their
+    start, each member's its own), and a PopulationPPO holding the same state; the last observations."""
+    ppo = leader_and_followers([0, 1, 2], off_policy_coef=coef, dual_clip=dual_clip)
+    data = torch.Generator().manual_seed(11)
+    torch.manual_seed(5)
+    rollout(ppo, [], data)
+    ppo.update(permutations(3, 8))
+    last_obs = rollout(ppo, [], data)
+    plain = leader_and_followers([0, 1, 2], ppo_class=PopulationPPO)
+    copy_state(ppo, plain)
+    return ppo, plain, last_obs
+
+
+@pytest.mark.parametrize("dual_clip", [None, 1.25])
 def test_the_leaders_loss_on_a_followers_samples_is_its_definition(monkeypatch, dual_clip):
     """The leader's first mini-batch loss minus its PPO loss equals ``off_policy_coef`` (L_surrogate + value_loss_coef
-    L_value) of the follower's samples, computed here with rsl-rl's networks holding the leader's weights: one-step
-    targets r + gamma (1 - done) V(s'), advantages normalised over the rollout, the ratio to the follower's stored
-    probabilities clipped (and dual-clipped); the followers' losses are their PPO losses alone."""
+    L_value) of the follower's samples, computed here with rsl-rl's networks holding the leader's weights and
+    normalisers: one-step targets r + gamma (1 - done) V(s'), advantages normalised over the rollout, the ratio to the
+    follower's stored probabilities clipped (and dual-clipped); the followers' losses are their PPO losses alone."""
     coef = 0.7
-    ppo = leader_and_followers([0, 1, 2], off_policy_coef=coef, dual_clip=dual_clip)
-    plain = leader_and_followers([0, 1, 2], ppo_class=PopulationPPO)
-    for population in (ppo, plain):
-        torch.manual_seed(5)
-        last_obs = rollout(population, [], torch.Generator().manual_seed(11))
+    ppo, plain, last_obs = second_iteration(dual_clip, coef)
     j = ppo.follower.item()
     assert j in (1, 2)
+    normalizer = ppo.model.critic_normalizer
+    assert not torch.equal(normalizer.mean[0], normalizer.mean[j]), "the leader's normaliser must be its own"
     actor, critic, std = leaders_networks(ppo)
     obs, actions = ppo.observations[j].flatten(0, 1), ppo.actions[j].flatten(0, 1)
     with torch.no_grad():
@@ -128,6 +147,103 @@ def test_the_leaders_loss_on_a_followers_samples_is_its_definition(monkeypatch, 
     assert (ratio - 1).abs().max() > 0.2, "the follower's policy differs from the leader's: the clip must act"
     if dual_clip is not None:
         assert (surrogate == -dual_clip * advantage).any(), "the dual clip must act for the test to mean something"
+
+
+def test_every_epoch_takes_each_of_the_followers_samples_once_in_mini_batches(monkeypatch):
+    """The leader's batches of the follower's samples: per epoch a partition of all T x N of them, the same in each
+    epoch, one per mini-batch; the off-policy losses come back with the update's, the leader's alone."""
+    ppo, _, _ = second_iteration()
+    batches = []
+    losses = PopulationPPO._losses
+
+    def recording(self, batch, members=None, dual_clip=None):
+        if members is not None:
+            batches.append(batch[0].clone())
+        return losses(self, batch, members, dual_clip)
+
+    monkeypatch.setattr(PopulationPPO, "_losses", recording)
+    reported = ppo.update(permutations(3, 9))
+    samples = ppo.off_policy.flatten(0, 1)
+    per_epoch = EPOCHS["num_mini_batches"]
+    assert len(batches) == EPOCHS["num_learning_epochs"] * per_epoch
+    first = torch.cat(batches[:per_epoch])
+    assert torch.equal(first, torch.cat(batches[per_epoch:])), "the same mini-batches in every epoch"
+    order = lambda rows: rows[torch.argsort(rows[:, 0])]  # noqa: E731  (rows sorted by their first observation)
+    assert torch.equal(order(first), order(samples)), "every sample once per epoch"
+    assert reported["off_policy_value"][0] > 0 and reported["off_policy_value"][1:].eq(0).all()
+    assert reported["off_policy_surrogate"][1:].eq(0).all()
+
+
+def test_only_the_leader_learns_from_the_follower_and_every_follower_is_drawn():
+    """One update with and without weight on the follower's samples, from the same state: the leader's parameters
+    differ, the followers' are bitwise the same (the loss reaches the leader's gradient and no other); over iterations
+    the follower is drawn among all of 1 .. K-1."""
+    ppo, plain, _ = second_iteration(coef=0.7)
+    unweighted = leader_and_followers([0, 1, 2], off_policy_coef=0.0)
+    copy_state(ppo, unweighted)
+    unweighted.off_policy.copy_(ppo.off_policy)
+    unweighted.follower.copy_(ppo.follower)
+    for learner in (ppo, unweighted):
+        torch.manual_seed(1)
+        learner.update(permutations(3, 9))
+    assert not torch.equal(ppo.model.params[0], unweighted.model.params[0])
+    assert torch.equal(ppo.model.params[1:], unweighted.model.params[1:])
+    drawn = set()
+    four = leader_and_followers([0, 1, 2, 3])
+    data = torch.Generator().manual_seed(2)
+    for _ in range(30):
+        rollout(four, [], data)
+        drawn.add(four.follower.item())
+        four.step = 0
+    assert drawn == {1, 2, 3}
+
+
+def small_training(tmp_path):
+    """A sapg run of 4 blocks of 8 envs, 4 steps per env, on the CPU, built in this process."""
+    from cartpole_warp.rl.training import Training
+
+    cfg = train_config(learner="sapg")
+    cfg.env.num_envs, cfg.env.device, cfg.agent.num_steps_per_env, cfg.agent.logger = 8, "cpu", 4, "none"
+    return Training(cfg, tmp_path)
+
+
+def test_the_best_policy_loaded_for_the_exports_is_the_leaders_and_the_followers_stay(tmp_path):
+    """The run's end loads ``model_best.pt``'s actor (``load_cfg`` {"actor": True}) before it exports: the leader's
+    rsl-rl actor, which the exports hold, is then that checkpoint's, its critic and the followers as they were."""
+    learner = small_training(tmp_path).runner.learner
+    obs, _ = learner.iteration(learner.env.get_observations(), 0)
+    best = learner.state_dict()
+    learner.iteration(obs, 1)
+    ppo = learner.population.ppo
+    params, critic = ppo.model.params.detach().clone(), ppo.model.member_state_dicts(0)[1]
+    learner.load_state_dict(best, {"actor": True}, strict=True)
+    for key, value in best["actor_state_dict"].items():
+        torch.testing.assert_close(learner.actor.state_dict()[key], value, rtol=0, atol=0)
+    assert not torch.equal(ppo.model.params[0], params[0]), "the leader had moved on since the best"
+    assert torch.equal(ppo.model.params[1:], params[1:])
+    torch.testing.assert_close(ppo.model.member_state_dicts(0)[1], critic, rtol=0, atol=0)
+
+
+def test_a_follower_gone_non_finite_starts_again_from_the_leader(tmp_path, monkeypatch, capsys):
+    """A follower whose update left non-finite weights takes the leader's networks, optimiser state and learning rate
+    before the next iteration could feed its samples to the leader; a line names it."""
+    learner = small_training(tmp_path).runner.learner
+    population, ppo = learner.population, learner.population.ppo
+    iteration = population.iteration
+
+    def diverging(obs, it):
+        result = iteration(obs, it)
+        ppo.model.params.data[2] = float("nan")
+        return result
+
+    monkeypatch.setattr(population, "iteration", diverging)
+    learner.iteration(learner.env.get_observations(), 0)
+    assert torch.isfinite(ppo.model.params).all()
+    for tensor in (ppo.model.params, ppo.exp_avg, ppo.exp_avg_sq, ppo.learning_rate, ppo.adam_steps):
+        assert torch.equal(tensor[2], tensor[0])
+    assert not torch.equal(ppo.model.params[1], ppo.model.params[0])
+    assert "follower 2's networks went non-finite in iteration 1: it starts again from the leader's" in \
+        capsys.readouterr().out
 
 
 def sapg_run(tmp_path, *flags, task=tasks.DEFAULT_TASK, iterations=2):
@@ -187,7 +303,7 @@ def test_the_same_seed_trains_the_same_run_and_a_resumed_run_continues_every_pol
 
 @pytest.mark.parametrize(("flags", "message"), [
     (["--task", "cartpole-balance-rgb"], "a task that observes camera frames"),
-    (["--agent.sapg.follower-entropy-coefs", "0.1"], "agent.sapg.follower_entropy_coefs: 1 values for 3 followers"),
+    (["--agent.sapg.follower-entropy-coefs", "0.1"], "agent.sapg.follower_entropy_coefs: 1 given for 3 followers"),
     (["--eval.in-step"], "eval.in_step"),
     (["--console", "rsl_rl"], "console rsl_rl"),
     (["--agent.sapg.num-blocks", "1"], "agent.sapg.num_blocks"),

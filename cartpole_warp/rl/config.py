@@ -66,6 +66,10 @@ class TrainConfig(RunSettings, Generic[TaskT]):
         require(self.agent.learner == "apg" or rollout % mini_batches == 0,
                 f"agent.algorithm.num_mini_batches ({mini_batches}) must divide num_envs * agent.num_steps_per_env "
                 f"({rollout})")
+        sapg = self.agent.sapg
+        followers, entropies = sapg.num_blocks - 1, len(sapg.follower_entropy_coefs)
+        require(entropies in (0, followers), f"agent.sapg.follower_entropy_coefs: {entropies} given for {followers} "
+                                             "followers (agent.sapg.num_blocks - 1)")
         return self
 
 

@@ -50,13 +50,14 @@ class LeaderFollowerPPO(PopulationPPO):
         super().__init__(model, num_envs, num_steps, **settings)
         self.off_policy_coef, self.dual_clip = off_policy_coef, dual_clip
         device = model.params.device
-        self.leader = torch.zeros(1, dtype=torch.long, device=device)
+        self.leader_index = torch.zeros(1, dtype=torch.long, device=device)
         self.follower = torch.ones(1, dtype=torch.long, device=device)
         """(1,) the follower whose rollout the leader learns from in this iteration (drawn by ``compute_returns``)."""
         self.off_policy = torch.zeros(num_steps, num_envs, self.rollout.shape[-1], device=device)
         """(T, N, F) laid out as a member's ``rollout``: the follower's observations, actions, log-probabilities,
         means and stds, with the leader's values, targets and advantages."""
         self._off_permutation = torch.arange(num_steps * num_envs, device=device)
+        self._off_policy_sums = torch.zeros(2, model.num_members, device=device)
 
     @torch.no_grad()
     def compute_returns(self, last_obs: torch.Tensor):
@@ -66,8 +67,8 @@ class LeaderFollowerPPO(PopulationPPO):
         self.off_policy.copy_(self.rollout.index_select(0, self.follower)[0])
         obs, _, values, returns, advantages, *_ = (t.squeeze(-1) for t in self.off_policy.split(self._fields, -1))
         steps, envs = self.num_steps, self.num_envs
-        values.copy_(self.model.values(obs.reshape(1, steps * envs, -1), self.leader).view(steps, envs))
-        last_values = self.model.values(last_obs.index_select(0, self.follower), self.leader)
+        values.copy_(self.model.values(obs.reshape(1, steps * envs, -1), self.leader_index).view(steps, envs))
+        last_values = self.model.values(last_obs.index_select(0, self.follower), self.leader_index)
         rewards, dones = (t.index_select(0, self.follower)[0] for t in (self.rewards, self.dones))
         returns.copy_(rewards + (1.0 - dones) * self.gamma[0] * torch.cat((values[1:], last_values)))
         advantages.copy_(returns - values)
@@ -75,16 +76,23 @@ class LeaderFollowerPPO(PopulationPPO):
             advantages.copy_((advantages - advantages.mean()) / (advantages.std() + 1e-8))
 
     def update(self, permutation: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """``PopulationPPO.update``, the leader's mini-batches of the follower's rollout drawn first."""
-        self._off_permutation = torch.rand(self.num_steps * self.num_envs, device=self.rollout.device).argsort()
-        return super().update(permutation)
+        """``PopulationPPO.update``, the leader's mini-batches of the follower's rollout drawn first; its mean losses
+        on them are added as ``off_policy_surrogate`` and ``off_policy_value`` (K,), 0 for the followers."""
+        device = self.rollout.device
+        self._off_permutation = torch.rand(self.num_steps * self.num_envs, device=device).argsort()
+        self._off_policy_sums = torch.zeros(2, self.model.num_members, device=device)
+        losses = super().update(permutation)
+        surrogate, value = self._off_policy_sums / (self.num_learning_epochs * self.num_mini_batches)
+        return losses | {"off_policy_surrogate": surrogate, "off_policy_value": value}
 
     def _step(self, loss: torch.Tensor, mini_batch: int):
         """The leader's loss on mini-batch ``mini_batch`` of the follower's rollout added to its own, then the step."""
         size = self.num_envs * self.num_steps // self.num_mini_batches
         rows = self._off_permutation[mini_batch * size:(mini_batch + 1) * size]
-        surrogate, value, _ = self._losses(self.off_policy.flatten(0, 1)[rows][None], self.leader, self.dual_clip)
-        off_policy_loss = self.off_policy_coef * (surrogate + self.value_loss_coef[self.leader] * value)
+        batch = self.off_policy.flatten(0, 1)[rows][None]
+        surrogate, value, _ = self._losses(batch, self.leader_index, self.dual_clip)
+        self._off_policy_sums[:, 0] += torch.cat((surrogate, value)).detach()
+        off_policy_loss = self.off_policy_coef * (surrogate + self.value_loss_coef[self.leader_index] * value)
         super()._step(torch.cat((loss[:1] + off_policy_loss, loss[1:])), mini_batch)
 
 
@@ -92,21 +100,18 @@ class SapgLearner:
     """The leader of a ``LeaderFollowerPPO`` population as the runner's learner (``rl.learner.Learner``): the
     runner's episodes, losses, learning rate and action noise are the leader's block's, its evaluations judge the
     leader, and a checkpoint holds the leader in rsl-rl's format (``play.py`` and the exports read it as a PPO run's)
-    with every policy's state besides (``sapg_state_dict``, which ``--resume`` restores)."""
+    with every policy's state besides (``sapg_state_dict``, which ``--resume`` restores). A follower whose networks
+    go non-finite starts again from the leader's."""
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
         """``num_blocks`` times the envs; ConfigError where the run cannot train this way."""
-        sapg = cfg.agent.sapg
-        if sapg.follower_entropy_coefs and len(sapg.follower_entropy_coefs) != sapg.num_blocks - 1:
-            raise ConfigError(f"agent.sapg.follower_entropy_coefs: {len(sapg.follower_entropy_coefs)} values for "
-                              f"{sapg.num_blocks - 1} followers (agent.sapg.num_blocks - 1)")
         problems = {"torchrun (its blocks learn in one process)": ranks.distributed,
                     "eval.in_step (its envs are its policies' blocks)": cfg.eval.in_step, **batched_ppo_problems(cfg)}
         named = [what for what, present in problems.items() if present]
         if named:
             raise ConfigError(f"--learner sapg cannot train with {'; '.join(named)}")
-        return dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs * sapg.num_blocks)
+        return dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs * cfg.agent.sapg.num_blocks)
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
         sapg, seed = cfg.agent.sapg, cfg.env.seed
@@ -133,9 +138,24 @@ class SapgLearner:
         """Nothing: every policy trains from the first iteration."""
 
     def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
-        """Every policy's iteration; the leader's losses out."""
+        """Every policy's iteration; the leader's losses out. A follower whose networks went non-finite starts again
+        from the leader's state (else the leader would learn from its non-finite samples), with a line saying so."""
         obs, losses = self.population.iteration(obs, it)
-        return obs, self.population.read(losses).losses[0]
+        readout = self.population.read(losses)
+        for k in range(1, self.population.num_members):
+            if not readout.finite[k]:
+                self._restart_follower(k)
+                print(f"follower {k}'s networks went non-finite in iteration {it + 1}: it starts again from the "
+                      "leader's", flush=True)
+        return obs, readout.losses[0]
+
+    @torch.no_grad()
+    def _restart_follower(self, k: int):
+        """Follower ``k`` given the leader's networks, normalisers, Adam state and learning rate."""
+        ppo = self.population.ppo
+        ppo.model.load_member_state_dicts(k, *ppo.model.member_state_dicts(0))
+        for tensor in (ppo.exp_avg, ppo.exp_avg_sq, ppo.adam_steps, ppo.learning_rate):
+            tensor[k] = tensor[0]
 
     def train_mode(self):
         self.leader.train_mode()
@@ -152,13 +172,22 @@ class SapgLearner:
 
     @torch.no_grad()
     def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
-        """Every policy's state where ``loaded`` holds it (a sapg checkpoint); else the leader's networks."""
-        if "sapg_state_dict" not in loaded:
-            raise ConfigError("--learner sapg resumes only a sapg run's checkpoint (it holds every policy's state)")
-        state, ppo = loaded["sapg_state_dict"], self.population.ppo
-        ppo.model.load_state_dict(state["model"], strict=strict)
-        for name in ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate"):
-            getattr(ppo, name).copy_(state[name])
+        """Every policy's state (``load_cfg`` None: a resume, of a sapg checkpoint only), or the leader's networks that
+        ``load_cfg`` names (rsl-rl's choice of parts: the best policy loaded for the exports)."""
+        ppo = self.population.ppo
+        if load_cfg is None:
+            if "sapg_state_dict" not in loaded:
+                raise ConfigError("--learner sapg resumes only a sapg run's checkpoint (it holds every policy's state)")
+            state = loaded["sapg_state_dict"]
+            ppo.model.load_state_dict(state["model"], strict=strict)
+            for name in ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate"):
+                getattr(ppo, name).copy_(state[name])
+        else:
+            actor_state, critic_state = ppo.model.member_state_dicts(0)
+            ppo.model.load_member_state_dicts(
+                0, loaded["actor_state_dict"] if load_cfg.get("actor") else actor_state,
+                loaded["critic_state_dict"] if load_cfg.get("critic") else critic_state)
+        self.leader.eval_mode()  # the leader's rsl-rl networks hold what was loaded
 
     def release_graphs(self):
         self.population.release_graphs()

@@ -160,8 +160,9 @@ class SapgConfig:
     """Split and aggregate policy gradients (``rl.sapg``, after SAPG: Singla, Agarwal and Pathak, ICML 2024): the run's
     envs are ``num_blocks`` blocks of ``env.num_envs`` envs, each block a policy's: block 0 the leader's, the others
     followers'. Every policy learns rsl-rl's PPO (``algorithm``'s settings) on its own block; the leader also learns
-    from one follower's block per iteration, drawn at random, through importance-weighted clipped surrogate and value
-    losses with one-step targets of its own critic. The leader is the run's policy: evaluated, saved and exported."""
+    from one follower's block per iteration, drawn at random, through an importance-weighted clipped surrogate loss
+    and a value loss, with one-step targets of its own critic. The leader is the run's policy: evaluated, saved and
+    exported."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
