@@ -16,6 +16,7 @@ TASKS = "known tasks: cartpole-balance, "
     ("tools.sweep", ["--task", "nope"], f"error: unknown task 'nope'; {TASKS}"),
     ("tools.sweep", ["--num-envs", "0"], "error: --num-envs must be >= 1, got 0"),
     ("tools.timing", ["--task", "nope"], f"error: unknown task 'nope'; {TASKS}"),
+    ("tools.timing", ["--learner", "sapg"], "error: tools.timing splits a PPO iteration; a --learner sapg run's"),
     ("tools.encoder", ["--task", "nope"], f"error: unknown task 'nope'; {TASKS}"),
     ("tools.encoder", ["--task", "cartpole-balance-rgb", "--device", "cpu"], "error: encoder timing needs a task seen"),
     ("tools.encoder", ["--task", "cartpole-balance", "--device", "cpu"], "error: encoder timing needs a task seen"),

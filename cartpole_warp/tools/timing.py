@@ -23,7 +23,7 @@ from ..cli import clean_errors, quiet_libraries
 from ..engine.scene import StageError
 from ..rl.runner import TaskRunner
 from ..rl.runs import RunError
-from ..settings.config import ConfigError
+from ..settings.config import ConfigError, require
 from ..train import resolve
 from ..wrappers.rsl_rl import RslRlVecEnv
 
@@ -43,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, RunError, StageError):
         cfg, _, _ = resolve(sys.argv[1:] if argv is None else argv)
+        require(cfg.agent.learner == "ppo", f"tools.timing splits a PPO iteration; a --learner {cfg.agent.learner} "
+                                            "run's collection and learning ms are in its summary.json and tools.sweep")
     torch.manual_seed(cfg.env.seed)
     cfg.apply_torch_threads()
     env = RslRlVecEnv(cfg.task_spec.env_class(cfg.env))
