@@ -25,7 +25,7 @@ from tensordict import TensorDict
 from ..engine.streams import PhaseClock
 from ..evaluation.statistics import EpisodeStats
 from ..gradients.rollout import DifferentiableRollout, Trajectory
-from ..settings.config import ConfigError, EnvConfig
+from ..settings.config import ConfigError, EnvConfig, refuse_present
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import Ranks
@@ -63,9 +63,7 @@ def check_apg(cfg: TrainConfig):
         "agent.torch_compile_mode (the learner steps the networks itself)": cfg.agent.torch_compile_mode is not None,
         "eval.in_step (the learner steps its envs itself; evaluations run on envs of their own)": cfg.eval.in_step,
     }
-    named = [what for what, present in problems.items() if present]
-    if named:
-        raise ConfigError(f"--learner apg cannot train {cfg.task} with {'; '.join(named)}")
+    refuse_present(f"--learner apg cannot train {cfg.task}", problems)
 
 
 class ApgLearner:

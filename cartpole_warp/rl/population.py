@@ -30,7 +30,7 @@ from ..engine.env import BatchedEnv
 from ..engine.streams import PhaseClock, TorchGraph
 from ..evaluation.rollouts import FirstEpisodes, FirstEpisodesRun, whole_episode_steps
 from ..evaluation.statistics import EpisodeStats, EpisodeSummary, SolvedRule, summary_of
-from ..settings.config import ConfigError
+from ..settings.config import ConfigError, refuse_present
 from ..wrappers.rsl_rl import RslRlVecEnv, mirror
 from .config import TrainConfig
 from .policies import build_networks
@@ -112,9 +112,7 @@ def check_population(cfg: TrainConfig, members: list[Member]):
     """ConfigError in one line where ``cfg`` cannot train as a population (``batched_ppo_problems``)."""
     problems = {f"--learner {cfg.agent.learner} (populations train with PPO)": cfg.agent.learner != "ppo",
                 **batched_ppo_problems(cfg)}
-    named = [what for what, present in problems.items() if present]
-    if named:
-        raise ConfigError(f"a population of {cfg.task} cannot train with {'; '.join(named)}")
+    refuse_present(f"a population of {cfg.task} cannot train", problems)
     if len(members) < 1:
         raise ConfigError("a population needs at least one member")
 

@@ -18,12 +18,15 @@ import torch
 from tensordict import TensorDict
 
 from ..evaluation.statistics import EpisodeStats
-from ..settings.config import ConfigError, EnvConfig
+from ..settings.config import ConfigError, EnvConfig, refuse_present
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import Ranks
 from .population import Member, MemberLearner, PopulationLearner, batched_ppo_problems
 from .population_ppo import BatchedActorCritic, PopulationPPO
+
+OPTIMIZER_STATE = ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate")
+"""``PopulationPPO``'s per-member optimiser state besides the model: Adam's moments and steps, the learning rate."""
 
 FOLLOWER_SEED_STRIDE = 1 << 20
 """Follower k of a run of seed s initialises its networks as a run of seed s + k * FOLLOWER_SEED_STRIDE would."""
@@ -78,9 +81,8 @@ class LeaderFollowerPPO(PopulationPPO):
     def update(self, permutation: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """``PopulationPPO.update``, the leader's mini-batches of the follower's rollout drawn first; its mean losses
         on them are added as ``off_policy_surrogate`` and ``off_policy_value`` (K,), 0 for the followers."""
-        device = self.rollout.device
-        self._off_permutation = torch.rand(self.num_steps * self.num_envs, device=device).argsort()
-        self._off_policy_sums = torch.zeros(2, self.model.num_members, device=device)
+        self._off_permutation.copy_(torch.rand(self.num_steps * self.num_envs, device=self.rollout.device).argsort())
+        self._off_policy_sums.zero_()
         losses = super().update(permutation)
         surrogate, value = self._off_policy_sums / (self.num_learning_epochs * self.num_mini_batches)
         return losses | {"off_policy_surrogate": surrogate, "off_policy_value": value}
@@ -108,9 +110,7 @@ class SapgLearner:
         """``num_blocks`` times the envs; ConfigError where the run cannot train this way."""
         problems = {"torchrun (its blocks learn in one process)": ranks.distributed,
                     "eval.in_step (its envs are its policies' blocks)": cfg.eval.in_step, **batched_ppo_problems(cfg)}
-        named = [what for what, present in problems.items() if present]
-        if named:
-            raise ConfigError(f"--learner sapg cannot train with {'; '.join(named)}")
+        refuse_present("--learner sapg cannot train", problems)
         return dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs * cfg.agent.sapg.num_blocks)
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
@@ -154,8 +154,8 @@ class SapgLearner:
         """Follower ``k`` given the leader's networks, normalisers, Adam state and learning rate."""
         ppo = self.population.ppo
         ppo.model.load_member_state_dicts(k, *ppo.model.member_state_dicts(0))
-        for tensor in (ppo.exp_avg, ppo.exp_avg_sq, ppo.adam_steps, ppo.learning_rate):
-            tensor[k] = tensor[0]
+        for name in OPTIMIZER_STATE:
+            getattr(ppo, name)[k] = getattr(ppo, name)[0]
 
     def train_mode(self):
         self.leader.train_mode()
@@ -166,9 +166,8 @@ class SapgLearner:
     def state_dict(self) -> dict:
         """The leader's checkpoint as a PPO run's, and every policy's networks, normalisers and optimiser state."""
         ppo = self.population.ppo
-        return self.leader.state_dict() | {"sapg_state_dict": {
-            "model": ppo.model.state_dict(), "exp_avg": ppo.exp_avg, "exp_avg_sq": ppo.exp_avg_sq,
-            "adam_steps": ppo.adam_steps, "learning_rate": ppo.learning_rate}}
+        state = {"model": ppo.model.state_dict()} | {name: getattr(ppo, name) for name in OPTIMIZER_STATE}
+        return self.leader.state_dict() | {"sapg_state_dict": state}
 
     @torch.no_grad()
     def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
@@ -180,7 +179,7 @@ class SapgLearner:
                 raise ConfigError("--learner sapg resumes only a sapg run's checkpoint (it holds every policy's state)")
             state = loaded["sapg_state_dict"]
             ppo.model.load_state_dict(state["model"], strict=strict)
-            for name in ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate"):
+            for name in OPTIMIZER_STATE:
                 getattr(ppo, name).copy_(state[name])
         else:
             actor_state, critic_state = ppo.model.member_state_dicts(0)

@@ -423,6 +423,13 @@ def _error_line(cls: type[Config], error: Any, key_prefix: str) -> str:
     return f"unknown config key {key!r}; valid keys here: {known}"
 
 
+def refuse_present(cannot: str, problems: dict[str, bool]) -> None:
+    """ConfigError '<cannot> with A; B' naming every problem present (``problems``: each in words, with whether it
+    is), if any: ``refuse_present("--learner apg cannot train cartpole-balance", {...})``."""
+    named = [what for what, present in problems.items() if present]
+    require(not named, f"{cannot} with {'; '.join(named)}")
+
+
 def raise_config_errors(where: str, errors: list[str]) -> None:
     """ConfigError naming every one of ``errors`` (``config_errors``) in one line, if there are any."""
     require(not errors, f"{where}: {' | '.join(errors)}")
