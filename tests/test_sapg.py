@@ -211,7 +211,7 @@ def test_the_best_policy_loaded_for_the_exports_is_the_leaders_and_the_followers
     """The run's end loads ``model_best.pt``'s actor (``load_cfg`` {"actor": True}) before it exports: the leader's
     rsl-rl actor, which the exports hold, is then that checkpoint's, its critic and the followers as they were."""
     learner = small_training(tmp_path).runner.learner
-    obs, _ = learner.iteration(learner.env.get_observations(), 0)
+    obs, _ = learner.iteration(learner.population.env.get_observations(), 0)
     best = learner.state_dict()
     learner.iteration(obs, 1)
     ppo = learner.population.ppo
@@ -237,13 +237,21 @@ def test_a_follower_gone_non_finite_starts_again_from_the_leader(tmp_path, monke
         return result
 
     monkeypatch.setattr(population, "iteration", diverging)
-    learner.iteration(learner.env.get_observations(), 0)
+    learner.iteration(learner.population.env.get_observations(), 0)
     assert torch.isfinite(ppo.model.params).all()
     for tensor in (ppo.model.params, ppo.exp_avg, ppo.exp_avg_sq, ppo.learning_rate, ppo.adam_steps):
         assert torch.equal(tensor[2], tensor[0])
     assert not torch.equal(ppo.model.params[1], ppo.model.params[0])
     assert "follower 2's networks went non-finite in iteration 1: it starts again from the leader's" in \
         capsys.readouterr().out
+
+
+def test_the_console_line_counts_the_leaders_envs(tmp_path, capsys):
+    """The console line is the leader's: an iteration in which none of its episodes ended counts its block's 8 envs,
+    not the run's 32."""
+    small_training(tmp_path).runner.learn(1)
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
+    assert len(rows) == 1 and "no episode ended; 8 running," in rows[0], rows
 
 
 def sapg_run(tmp_path, *flags, task=tasks.DEFAULT_TASK, iterations=2):

@@ -36,6 +36,8 @@ class Learner(Protocol):
     ``EpisodeStats`` it adds each ended episode to."""
 
     env: RslRlVecEnv
+    """The envs whose episodes ``episodes`` holds (the console line counts them): the training's env, or its
+    leader's block (``rl.population.MemberEnv``)."""
     episodes: EpisodeStats
     actor: torch.nn.Module
     """The policy an evaluation judges and the exports hold (rsl-rl's ``MLPModel``: its mean when in eval mode)."""

@@ -123,7 +123,7 @@ class SapgLearner:
             ppo_class=functools.partial(LeaderFollowerPPO, off_policy_coef=sapg.off_policy_coef,
                                         dual_clip=sapg.dual_clip))
         self.leader = MemberLearner(self.population, 0)
-        self.env, self.clock, self.on_step = env, self.population.clock, None
+        self.env, self.clock, self.on_step = self.leader.env, self.population.clock, None
         self.episodes, self.actor = self.leader.episodes, self.leader.actor
 
     @property
