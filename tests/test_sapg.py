@@ -277,13 +277,41 @@ def test_every_state_task_trains_with_a_leader_and_followers(tmp_path, task):
     assert state["model"]["params"].shape[0] == blocks and torch.isfinite(state["model"]["params"]).all()
     steps = 2 * algorithm.num_learning_epochs * algorithm.num_mini_batches
     assert state["adam_steps"].tolist() == [steps] * blocks, "every policy took its Adam steps"
-    assert "with --learner sapg the task's settings: eval.in_step False" in result.stdout
 
 
-def test_the_learners_settings_keep_evaluations_off_the_training_envs():
-    """The three poles evaluate inside the training's step on a GPU; the leader's envs are one block of many."""
-    assert train_config("cart-three-pole-swingup", device="cuda:0").eval.in_step
-    assert not train_config("cart-three-pole-swingup", device="cuda:0", learner="sapg").eval.in_step
+def test_a_leader_evaluates_inside_the_step_where_the_task_does():
+    """The three poles evaluate inside the training's step on a GPU, with either learner."""
+    for learner in ("ppo", "sapg"):
+        cfg = train_config("cart-three-pole-swingup", device="cuda:0", learner=learner)
+        assert cfg.agent.learner == learner and cfg.eval.in_step
+
+
+def test_the_evaluation_inside_the_step_plays_the_leader_and_leaves_every_block_as_without_it(tmp_path):
+    """Three iterations of the same seed with and without ``eval.in_step`` (an evaluation due after every iteration, so
+    its envs restart after the first and step beside the blocks): every block's third rollout and every policy's
+    networks are the same; the evaluation's frozen policy is the leader's of the iteration it names."""
+    from cartpole_warp.rl.training import Training
+
+    populations = []
+    for in_step in (False, True):
+        cfg = train_config(learner="sapg")
+        cfg.env.num_envs, cfg.env.device, cfg.agent.num_steps_per_env, cfg.agent.logger = 8, "cpu", 4, "none"
+        cfg.eval.num_envs, cfg.eval.in_step, cfg.eval.min_interval, cfg.eval.max_interval = 8, in_step, 1, 1
+        runner = Training(cfg, tmp_path / f"run{in_step}").runner
+        assert (runner.in_step is not None) == in_step and runner.env.num_envs == 4 * 8
+        runner.learn(3)
+        populations.append(runner.learner.population)
+    ppos = [population.ppo for population in populations]
+    for field in ("observations", "actions", "rewards", "dones"):
+        assert torch.equal(*(getattr(ppo, field) for ppo in ppos)), field
+    assert torch.equal(ppos[0].model.params, ppos[1].model.params)
+    judge = runner.evaluations.in_step
+    assert judge.judged_policy is not None, "an evaluation began"
+    ppos[1].model.load_state_dict(judge.judged_policy[2]["sapg_state_dict"]["model"])  # the policies it judged
+    frozen = judge.frozen_actor.state_dict()
+    for member, same in ((0, True), (1, False)):
+        actor = ppos[1].model.member_state_dicts(member)[0]
+        assert all(torch.equal(frozen[key], actor[key]) for key in actor) == same, member
 
 
 def test_the_same_seed_trains_the_same_run_and_a_resumed_run_continues_every_policy(tmp_path):
@@ -312,7 +340,6 @@ def test_the_same_seed_trains_the_same_run_and_a_resumed_run_continues_every_pol
 @pytest.mark.parametrize(("flags", "message"), [
     (["--task", "cartpole-balance-rgb"], "a task that observes camera frames"),
     (["--agent.sapg.follower-entropy-coefs", "0.1"], "agent.sapg.follower_entropy_coefs: 1 given for 3 followers"),
-    (["--eval.in-step"], "eval.in_step"),
     (["--console", "rsl_rl"], "console rsl_rl"),
     (["--agent.sapg.num-blocks", "1"], "agent.sapg.num_blocks"),
 ])

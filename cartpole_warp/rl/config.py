@@ -88,8 +88,8 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     data = merge(dataclasses.asdict(base), rest)
     data = merge(data, device_defaults(base.task_spec, env.device))
     chosen = learner or preset_data.get("agent", {}).get("learner")
-    if chosen in base.task_spec.learner_defaults:
-        data = merge(merge(data, base.task_spec.learner_defaults[chosen]), {"agent": {"learner": chosen}})
+    if chosen is not None:
+        data = merge(merge(data, base.task_spec.learner_defaults.get(chosen, {})), {"agent": {"learner": chosen}})
     if preset is not None:  # the preset over the task's and the learner's choices, its env section too
         data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))

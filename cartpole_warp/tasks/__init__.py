@@ -36,14 +36,10 @@ env steps, no observation normalisation (with it the swing-up's actor stalled), 
 task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself);
 chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
 
-SAPG_DEFAULTS = {"eval": {"in_step": False}}
-"""A task's settings for ``--learner sapg`` unless it names its own: evaluations on envs of their own (the learner's
-envs are its policies' blocks)."""
-
-
 def learner_defaults(**by_learner: dict) -> dict[str, dict]:
-    """``Task.learner_defaults``: the given learners' settings (``apg=...``), the generic ones for the others."""
-    return {"apg": APG_DEFAULTS, "sapg": SAPG_DEFAULTS} | by_learner
+    """``Task.learner_defaults``: the given learners' settings (``apg=...``), the generic ones for the others (PPO and
+    ``sapg`` take the task's own)."""
+    return {"apg": APG_DEFAULTS} | by_learner
 
 
 @dataclass(frozen=True)
@@ -74,8 +70,8 @@ class Task:
     costs its samples). train.py names them in its first lines; a variant inherits them as ``gpu_defaults``."""
     learner_defaults: dict[str, dict] = field(default_factory=learner_defaults)
     """Per learner other than 'ppo', overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run
-    trains with ``--learner NAME`` (``apg``: analytic policy gradients, few envs and longer windows; ``sapg``);
-    train.py names them in its first lines."""
+    trains with ``--learner NAME`` (``apg``: analytic policy gradients, few envs and longer windows); train.py names
+    them in its first lines."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
 
