@@ -118,7 +118,7 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
 
 def learner_settings(cfg: TrainConfig) -> dict[str, object]:
     """The settings the task chooses for ``cfg``'s learner (``Task.learner_defaults``), as ``gpu_settings``; {} where
-    it chooses none (PPO)."""
+    it chooses none (PPO, ``sapg``)."""
     return chosen_settings(cfg, cfg.task_spec.learner_defaults.get(cfg.agent.learner, {}))
 
 

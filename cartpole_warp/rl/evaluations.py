@@ -125,7 +125,12 @@ class Evaluations:
         judged = self.in_step.verdict(self.num_steps_per_env, self.rule) if self.in_step.running else None
         if not self.in_step.running and self.due(it, stats):
             self.last_iteration = it
-            self.in_step.begin(self.learner.actor, it, env_steps, self.learner.state_dict())
+            state = self.learner.state_dict()
+            self.learner.eval_mode()  # the actor as the learner stands now
+            try:
+                self.in_step.begin(self.learner.actor, it, env_steps, state)
+            finally:
+                self.learner.train_mode()
         return judged
 
     def record(self, judged: Judged, solved: bool, progress: Progress, run_dir: Path | None,

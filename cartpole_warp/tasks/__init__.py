@@ -36,6 +36,7 @@ env steps, no observation normalisation (with it the swing-up's actor stalled), 
 task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself);
 chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
 
+
 def learner_defaults(**by_learner: dict) -> dict[str, dict]:
     """``Task.learner_defaults``: the given learners' settings (``apg=...``), the generic ones for the others (PPO and
     ``sapg`` take the task's own)."""
