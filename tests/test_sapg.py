@@ -11,7 +11,7 @@ import json
 
 import pytest
 import torch
-from conftest import call_main
+from conftest import DEVICE, call_main
 from rsl_rl.models import MLPModel
 from test_population_ppo import EPOCHS, NUM_ENVS, NUM_STEPS, mlp_models, one_thread, permutations, rollout, rsl_rl_ppo
 from test_train_cli import only_run, train_to_solved_and_play
@@ -289,13 +289,14 @@ def test_a_leader_evaluates_inside_the_step_where_the_task_does():
 def test_the_evaluation_inside_the_step_plays_the_leader_and_leaves_every_block_as_without_it(tmp_path):
     """Three iterations of the same seed with and without ``eval.in_step`` (an evaluation due after every iteration, so
     its envs restart after the first and step beside the blocks): every block's third rollout and every policy's
-    networks are the same; the evaluation's frozen policy is the leader's of the iteration it names."""
+    networks are the same; the evaluation's frozen policy is the leader's of the iteration it names. On a GPU
+    (``CARTPOLE_TEST_DEVICE``) the rollouts run in the population's CUDA graph, the evaluation's envs inside it."""
     from cartpole_warp.rl.training import Training
 
     populations = []
     for in_step in (False, True):
         cfg = train_config(learner="sapg")
-        cfg.env.num_envs, cfg.env.device, cfg.agent.num_steps_per_env, cfg.agent.logger = 8, "cpu", 4, "none"
+        cfg.env.num_envs, cfg.env.device, cfg.agent.num_steps_per_env, cfg.agent.logger = 8, DEVICE, 4, "none"
         cfg.eval.num_envs, cfg.eval.in_step, cfg.eval.min_interval, cfg.eval.max_interval = 8, in_step, 1, 1
         runner = Training(cfg, tmp_path / f"run{in_step}").runner
         assert (runner.in_step is not None) == in_step and runner.env.num_envs == 4 * 8
