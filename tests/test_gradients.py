@@ -122,6 +122,10 @@ def test_clear_errors():
     plain = cartpole_warp.tasks.make("cartpole-balance", num_envs=2, device=DEVICE)
     with pytest.raises(ValueError, match="gradients"):
         DifferentiableRollout(plain, horizon=4)
+    tiled = cartpole_warp.tasks.make("cartpole-balance", num_envs=2, device=DEVICE,
+                                     sim={"gradients": True, "tile_gemm": "on"})
+    with pytest.raises(ValueError, match="keeps SolverFeatherstone's dense path .its gradients are checked"):
+        DifferentiableRollout(tiled, horizon=4)
     rollout = make_rollout("cartpole-balance", horizon=2)
     q0, qd0, actions = start(rollout)
     with pytest.raises(ValueError, match="not both"):

@@ -20,6 +20,10 @@ REFERENCE_SUBSTEPS = 2
 is many orders below the solvers' (first order) and the tolerances."""
 
 
+SOLVERS = {"featherstone": {"solver": "featherstone", "tile_gemm": "off"},
+           "featherstone-tiles": {"solver": "featherstone", "tile_gemm": "on"}, "mujoco": {"solver": "mujoco"}}
+"""The physics paths under test: SolverFeatherstone's dense and tile paths (``sim.tile_gemm``), SolverMuJoCo."""
+
 STAGE = data_path("usd", "cartpole.usda")
 NEWTON_STAGE = Path(newton.examples.get_asset("cartpole_single_pendulum.usda"))
 """Newton's copy of Isaac Lab's cartpole: joints slider_to_cart and cart_to_pole, no authored pole inertia."""
@@ -178,8 +182,9 @@ def actions(steps, amplitudes):
     return np.stack([a * np.sin(2 * math.pi * 1.5 * t) + pulse, b * np.cos(7 * t) - pulse, c + pulse], axis=1)
 
 
-@pytest.mark.parametrize("stage, solver", [("ours", "featherstone"), ("ours", "mujoco"), ("newton", "featherstone"),
-                                           ("dmc", "featherstone"), ("dmc", "mujoco")])
+@pytest.mark.parametrize("stage, solver", [("ours", "featherstone"), ("ours", "featherstone-tiles"), ("ours", "mujoco"),
+                                           ("newton", "featherstone"), ("dmc", "featherstone"),
+                                           ("dmc", "featherstone-tiles"), ("dmc", "mujoco")])
 def test_trajectory_matches_closed_form(stage, solver, make):
     """1.2 s under a fixed force sequence (with pulses beyond the action clip) from three starting states, through
     the env of the stage's task (its observations read back as states; the swing-up's pole angle from its cosine and
@@ -193,7 +198,7 @@ def test_trajectory_matches_closed_form(stage, solver, make):
     case = TRAJECTORY_CASES[stage]
     steps = round(DURATION_S / PHYSICS_DT_S)
     env = make(3, task_name=case["task"],
-               sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1,
+               sim={**SOLVERS[solver], "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1,
                     "stage_path": str(path)},
                task={"episode_length_s": None, **case["task_settings"], **joints})
     assert env.cfg.task.max_push_effort_n == case["effort_n"]
@@ -225,14 +230,14 @@ RANDOMIZED = {"mass_scale": {"cart": [0.5, 2.0], "pole": [0.5, 2.0]}, "com_offse
               "joint_friction": {"cart": [0.0, 1.0]}}
 
 
-@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+@pytest.mark.parametrize("solver", SOLVERS)
 def test_randomized_envs_match_closed_form_each(solver, make):
     """Six envs, each with its own drawn cart and pole mass, pole centre of mass, force per action, gravity, joint
     damping and cart friction: 0.5 s of each matches the closed-form cart-pole with that env's own parameters, as
     ``physical_params()`` reports them (the pole's inertia about its centre of mass: the stage's, scaled with the
     mass)."""
     num_envs, steps = 6, round(0.5 / PHYSICS_DT_S)
-    env = make(num_envs, seed=3, sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1,
+    env = make(num_envs, seed=3, sim={**SOLVERS[solver], "physics_dt": PHYSICS_DT_S, "decimation": 1,
                                       "mass_matrix_interval": 1},
                task={"episode_length_s": None, "reset_dist_m": 100.0, "max_pole_angle_rad": 100.0},
                randomization=RANDOMIZED)
@@ -344,14 +349,14 @@ def double_pole_references(steps: int) -> tuple[np.ndarray, np.ndarray]:
     return commands, np.stack(references, axis=1)
 
 
-@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+@pytest.mark.parametrize("solver", SOLVERS)
 def test_double_pole_trajectory_matches_closed_form(solver, make):
     """One env step after another for 1.2 s (hanging starts) and 0.6 s (upright ones, where the chain is unstable and
     differences grow fastest), through the cart-double-pole-balance env, against the closed-form cart + double
     pendulum with the stage's parameters; same tolerance as the single pole's."""
     starts = torch.tensor(DOUBLE_POLE_STARTS)
     env = make(4, task_name="cart-double-pole-balance",
-               sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
+               sim={**SOLVERS[solver], "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
                task={"episode_length_s": None, "reset_dist_m": 100.0, "min_tip_height_m": -10.0})
     assert env.cfg.task.max_push_effort_n == 40.0
     env.set_state(starts.to(env.device))
@@ -446,7 +451,7 @@ def test_the_chain_reference_is_the_double_pendulums_closed_form():
 
 
 @pytest.mark.parametrize("num_poles, task_name", [(2, "cart-two-pole-swingup"), (3, "cart-three-pole-swingup")])
-@pytest.mark.parametrize("solver", ["featherstone", "mujoco"])
+@pytest.mark.parametrize("solver", SOLVERS)
 def test_pole_chain_trajectory_matches_the_lagrangian(num_poles, task_name, solver, make):
     """dm_control's chain stages stepped through their swing-up envs, 1.2 s from hanging and tilted starts and 0.6 s
     from near-upright ones (the chain is unstable there), against ``chain_rollout``; the single pole's tolerance."""
@@ -459,7 +464,7 @@ def test_pole_chain_trajectory_matches_the_lagrangian(num_poles, task_name, solv
     starts[2, 2::2] = rng.uniform(-0.1, 0.1, num_poles)
     starts[1:, 1::2] = rng.uniform(-0.5, 0.5, (2, num_poles + 1))
     env = make(3, task_name=task_name,
-               sim={"solver": solver, "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
+               sim={**SOLVERS[solver], "physics_dt": PHYSICS_DT_S, "decimation": 1, "mass_matrix_interval": 1},
                task={"episode_length_s": None})
     env.set_state(torch.tensor(starts, dtype=torch.float32, device=env.device))
     steps = round(DURATION_S / PHYSICS_DT_S)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import newton
 import pytest
+import torch
+from conftest import sees_images
 from pxr import Usd, UsdGeom, UsdPhysics
 
 import cartpole_warp
@@ -125,3 +127,53 @@ def test_joint_names_resolve_to_one_joint_or_name_the_candidates():
     with pytest.raises(cartpole_warp.StageError, match=r"stage robot.usda: no joint named 'wheel' for the pole joint "
                                                        r"\(set task.pole_joint\); its joints: /a/slide"):
         pick_joint(labels, role("wheel"), path)
+
+
+TILE_TOLERANCE = 1e-3
+"""The most that SolverFeatherstone's tile and dense paths may differ by (m, rad, m/s, rad/s) in 60 env steps from one
+start under one action sequence: the same equations, summed in another order (measured on the CPU: 0 for one pole, at
+most 5e-5 for the chains)."""
+
+
+@pytest.mark.parametrize("task_name", [name for name in cartpole_warp.tasks.names() if not sees_images(name)])
+def test_the_tile_path_steps_as_the_dense_path(task_name, make):
+    """Both paths of every state task from the same seed, under the same actions: the same states within
+    ``TILE_TOLERANCE``, and the same ends."""
+    runs = []
+    for tile_gemm in ("off", "on"):
+        env = make(8, seed=4, task_name=task_name, sim={"tile_gemm": tile_gemm})
+        assert env.scene.solver.use_tile_gemm == (tile_gemm == "on")
+        t = torch.arange(env.num_envs, device=env.device, dtype=torch.float32)
+        states, ends = [], []
+        for k in range(60):
+            actions = torch.sin(0.3 * k + t).reshape(-1, 1).expand(-1, env.num_actions).contiguous()
+            _, _, terminated, truncated, _ = env.step(actions)
+            states.append(torch.cat(env.joint_state(), dim=1))
+            ends.append(terminated | truncated)
+        runs.append((torch.stack(states), torch.stack(ends)))
+    (dense, dense_ends), (tiles, tile_ends) = runs
+    assert torch.equal(dense_ends, tile_ends)
+    difference = (dense - tiles).abs().max().item()
+    assert difference <= TILE_TOLERANCE, difference
+
+
+def test_the_tile_path_is_chosen_by_device_and_solver():
+    """'auto' takes SolverFeatherstone's tile path on CUDA and its dense path on the CPU; MuJoCo has no such path, and
+    'on' for it is refused; the CPU's tile path steps one shard (Warp's CPU tile arena is shared by threads)."""
+    config = cartpole_warp.tasks.env_config
+    auto = config("cartpole-swingup").sim
+    assert auto.tile_gemm == "auto" and auto.tiles("cuda:0") and auto.tiles("cuda:1") and not auto.tiles("cpu")
+    on, off = (config("cartpole-swingup", sim={"tile_gemm": choice}).sim for choice in ("on", "off"))
+    assert on.tiles("cpu") and on.tiles("cuda:0") and not off.tiles("cpu") and not off.tiles("cuda:0")
+    assert not config("cartpole-swingup", sim={"solver": "mujoco"}).sim.tiles("cuda:0")
+    with pytest.raises(cartpole_warp.ConfigError, match="sim.tile_gemm='on' is SolverFeatherstone's tile path"):
+        config("cartpole-swingup", sim={"solver": "mujoco", "tile_gemm": "on"})
+    sharded = cartpole_warp.tasks.make("cartpole-swingup", num_envs=2048, device="cpu", sim={"cpu_threads": 2})
+    tiled = cartpole_warp.tasks.make("cartpole-swingup", num_envs=2048, device="cpu",
+                                     sim={"cpu_threads": 2, "tile_gemm": "on"})
+    try:
+        assert len(sharded.shards) == 2 and len(tiled.shards) == 1
+        assert not sharded.scene.solver.use_tile_gemm and tiled.scene.solver.use_tile_gemm
+    finally:
+        sharded.close()
+        tiled.close()

@@ -24,7 +24,7 @@ from .kernels import COMMON_ENDS, TaskFunctions, build_kernels, constants_of, in
 from .observations import observations_of
 from .randomization import PhysicalParams
 from .runtime import Shard, ShardedStep, load_modules, resolve_device, shard_bounds, timed, warp_output
-from .scene import SHARDABLE_SOLVERS, JointRole, Scene, build_scene, preloadable_modules, set_gradients
+from .scene import JointRole, Scene, build_scene, preloadable_modules, set_gradients, shardable
 from .spaces import VectorSpaces
 
 if TYPE_CHECKING:
@@ -104,7 +104,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         cfg.randomization.validate(self.joint_roles)
         self.observations = observations_of(cfg.camera, cfg.num_envs, self.device)
         """What the policy observes: the task's state or camera frames (``engine.observations``)."""
-        bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, cfg.sim.solver in SHARDABLE_SOLVERS)
+        bounds = shard_bounds(cfg.num_envs, self.device, cfg.sim.cpu_threads, shardable(cfg.sim, self.device))
         with timed(self.build_time_s, "kernels"):
             set_gradients(cfg.sim.solver, cfg.sim.gradients)
             load_modules(self.warp_modules(), self.device, type(self).__name__)
@@ -126,7 +126,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
             self._reset_where(self.buffers.all_envs, None)
             wp.synchronize_device(self.device)
         with timed(self.build_time_s, "capture"):
-            self._step = ShardedStep(self.shards, self._step_kernels, self._order, capture=cfg.sim.capture != "off")
+            self._step = ShardedStep(self.shards, self.shard_step, self._order, capture=cfg.sim.capture != "off")
 
     def warp_modules(self) -> list[wp.Module]:
         """The Warp modules this env launches kernels of (loaded when it is built): Newton's (but mujoco-warp's and its
@@ -200,7 +200,8 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         self._apply_actions(shard)
         self._simulate(shard)
 
-    def _step_kernels(self, shard: Shard):
+    def shard_step(self, shard: Shard):
+        """One env step's Warp work for ``shard``: what its captured graph replays (``tools.nodes`` counts it)."""
         robot, episodes, results = self._shard_structs[shard.index]
         b = self.buffers
         self._apply_actions(shard)
@@ -330,7 +331,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
             self._check(name, value, ((self.num_envs,),), value.dtype if torch.is_tensor(value) else torch.float32)
         if self.physics.set(values):  # friction from now on, which the captured step lacks: capture it again
             self._step.close()
-            self._step = ShardedStep(self.shards, self._step_kernels, self._order, self._step.replay is not None)
+            self._step = ShardedStep(self.shards, self.shard_step, self._order, self._step.replay is not None)
         with self._order, warp_output(self.cfg.verbose):
             for shard in self.shards:
                 self.physics.write(shard)

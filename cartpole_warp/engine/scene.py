@@ -28,7 +28,13 @@ if TYPE_CHECKING:
 
 SHARDABLE_SOLVERS = ("featherstone",)
 """Solvers whose CPU scenes can step in parallel threads; mujoco-warp's tile kernels share one CPU arena, so
-concurrent replays of MuJoCo scenes abort."""
+concurrent replays of MuJoCo scenes abort (and so do SolverFeatherstone's on its tile path: ``shardable``)."""
+
+
+def shardable(sim: SimConfig, device: str) -> bool:
+    """Whether ``sim``'s CPU scenes can step in parallel threads: a solver of SHARDABLE_SOLVERS, without Warp's tile
+    kernels (their CPU arena is one for every thread)."""
+    return sim.solver in SHARDABLE_SOLVERS and not sim.tiles(device)
 
 
 FEATHERSTONE_MODULE = "newton._src.solvers.featherstone.kernels"
@@ -167,15 +173,22 @@ def load_robot(stage_path: Path, joints: list[JointRole]) -> tuple[newton.ModelB
     return builder, found
 
 
-def make_solver(model: newton.Model, sim: SimConfig) -> newton.solvers.SolverBase:
-    """The configured solver, set up for frictionless, undamped joints without contacts."""
+def make_solver(model: newton.Model, sim: SimConfig, tiles: bool) -> newton.solvers.SolverBase:
+    """The configured solver, set up for frictionless, undamped joints without contacts; SolverFeatherstone on its
+    tile path where ``tiles``. Its tile kernels (a Warp module per articulation size, made here) compile with
+    adjoints only where ``sim.gradients``: Warp gives a module the global ``enable_backward`` when it is made, so that
+    setting is changed for the solver's construction alone."""
     import newton
 
-    if sim.solver == "featherstone":
-        return newton.solvers.SolverFeatherstone(
-            model, angular_damping=0.0, update_mass_matrix_interval=sim.mass_matrix_interval
-        )
-    return newton.solvers.SolverMuJoCo(model, disable_contacts=True)
+    if sim.solver != "featherstone":
+        return newton.solvers.SolverMuJoCo(model, disable_contacts=True)
+    backward = wp.config.enable_backward
+    wp.config.enable_backward = sim.gradients if tiles else backward
+    try:
+        return newton.solvers.SolverFeatherstone(model, angular_damping=0.0, use_tile_gemm=tiles,
+                                                 update_mass_matrix_interval=sim.mass_matrix_interval)
+    finally:
+        wp.config.enable_backward = backward
 
 
 def model_modules() -> list[wp.Module]:
@@ -236,7 +249,7 @@ def build_scene(num_envs: int, device: str, sim: SimConfig, stage: Path, joints:
                           "while building them): use fewer") from None
     scene = Scene(
         model=model,
-        solver=make_solver(model, sim),
+        solver=make_solver(model, sim, sim.tiles(str(model.device))),
         state_0=model.state(),
         state_1=model.state(),
         control=model.control(),

@@ -23,6 +23,7 @@ stage, built again with gradients (``sim.gradients``: Newton's kernels with thei
 stay adjoint-free, and training never builds this.
 """
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -254,10 +255,10 @@ class EnvStep:
         # one solver per mass matrix the env's solver builds in a step (every sim.mass_matrix_interval physics
         # steps); the physics steps between read it, as the env's do. The rest of the step's scratch lives on the
         # states (Featherstone's choice when the states take gradients).
-        self.solvers = [make_solver(model, r.sim) for _ in range(r.decimation // r.mass_matrix_interval)]
+        self.solvers = [make_solver(model, r.sim, tiles=False) for _ in range(r.decimation // r.mass_matrix_interval)]
         for solver in self.solvers:
-            if solver._has_joint_mimics or solver.use_tile_gemm or not hasattr(solver, "_step"):
-                raise ValueError("a differentiable rollout needs Featherstone without mimic joints or tile GEMMs "
+            if solver._has_joint_mimics or not hasattr(solver, "_step"):
+                raise ValueError("a differentiable rollout needs Featherstone without mimic joints "
                                  "(Newton 1.8's solver, whose step counter picks when the mass matrix is built)")
             solver.body_I_m, solver.body_X_com = r.inertia_solver.body_I_m, r.inertia_solver.body_X_com
         self.tape = CapturedTape(dev, functools.partial(self.launch, r), r.capture)
@@ -374,6 +375,10 @@ class ObserveFunction(torch.autograd.Function):
         return None, grad_of(rollout.q0), grad_of(rollout.qd0)
 
 
+DENSE_ONLY = "its gradients are checked against central differences on that path alone"
+"""Why a rollout steps SolverFeatherstone's dense path whatever ``sim.tile_gemm`` says."""
+
+
 def check_rollout(env: BatchedEnv, horizon: int):
     """ValueError where ``env`` cannot be rolled out differentiably for ``horizon`` env steps."""
     cfg = env.cfg
@@ -381,6 +386,9 @@ def check_rollout(env: BatchedEnv, horizon: int):
         raise ValueError("a differentiable rollout needs an env built with SolverFeatherstone and "
                          "sim={'gradients': True} (Newton's kernels with their adjoints); got "
                          f"sim.solver={cfg.sim.solver!r}, sim.gradients={cfg.sim.gradients}")
+    if cfg.sim.tile_gemm == "on":
+        raise ValueError(f"a differentiable rollout keeps SolverFeatherstone's dense path ({DENSE_ONLY}); got "
+                         "sim.tile_gemm='on'")
     if env.sees_images:
         raise ValueError("a differentiable rollout runs state tasks (the renderer has no adjoint); "
                          f"{type(env).__name__} observes camera frames")
@@ -400,7 +408,9 @@ class DifferentiableRollout:
         self.roles = env.joint_roles
         self.num_joints, self.num_actions, self.num_obs = len(self.roles), env.num_actions, env.num_obs
         self.decimation, self.physics_dt = cfg.sim.decimation, cfg.sim.physics_dt
-        self.mass_matrix_interval, self.sim = cfg.sim.mass_matrix_interval, cfg.sim
+        self.mass_matrix_interval = cfg.sim.mass_matrix_interval
+        self.sim = dataclasses.replace(cfg.sim, tile_gemm="off")
+        """The env's physics settings on SolverFeatherstone's dense path (``DENSE_ONLY``)."""
         self.order = StreamOrder(self.device)
         """Warp's work after torch's pending work on entry, torch's after Warp's on exit (their CUDA streams)."""
         self.calls = 0
@@ -409,7 +419,7 @@ class DifferentiableRollout:
                                               self.num_obs, f"{type(env).__module__}.{type(env).__qualname__}.grad")
         load_modules([self.kernels.write_physics.module], self.device, "the differentiable rollout (with adjoints)")
         self.task_constants = constants_of(env.config_class, cfg.task)
-        scene = build_scene(self.num_envs, self.device, cfg.sim, env.stage_path, env.joints(cfg.task),
+        scene = build_scene(self.num_envs, self.device, self.sim, env.stage_path, env.joints(cfg.task),
                             requires_grad=True)
         self.model, self.dofs_per_env = scene.model, scene.dofs_per_env
         self.held = torch.tensor([role in cfg.sim.held_joints for role in self.roles], device=self.device)

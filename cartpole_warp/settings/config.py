@@ -27,7 +27,9 @@ from .files import data_path
 
 Solver = Literal["featherstone", "mujoco"]
 """Newton solvers: ``SolverFeatherstone`` or ``SolverMuJoCo`` (on mujoco-warp)."""
-Capture = Literal["auto", "on", "off"]
+Switch = Literal["auto", "on", "off"]
+"""A choice that 'auto' makes by device."""
+Capture = Switch
 """Graph capture of the env step."""
 Image = Literal["none", "rgb", "depth"]
 """What the policy sees: the task's state observations, or camera frames (``CameraConfig``)."""
@@ -139,6 +141,12 @@ class SimConfig:
     """A joint position or velocity (m or rad, m/s or rad/s) beyond this ends that env's episode as 'diverged_state'
     with reward 0, like a non-finite one: far beyond what any task reaches, it keeps runaway physics (e.g. an extreme
     randomized mass) out of the observations, the rewards and the policy's normaliser."""
+    tile_gemm: Switch = "auto"
+    """SolverFeatherstone's joint-space mass matrix and its Cholesky factor through Warp's tile API (Newton's
+    ``use_tile_gemm``: a block of threads per articulation, only the diagonal blocks of the body mass matrix) instead
+    of its dense one-thread-per-articulation products. 'auto': on CUDA, off on the CPU; 'on' on the CPU steps one shard
+    in one thread (Warp's CPU tile kernels share one memory arena between threads). The two paths round differently, so
+    a seed's run differs between them. docs/benchmarks.md has the measurements behind 'auto'."""
     gradients: Flag = False
     """Compile the adjoint (gradient) code of Newton's modules that the env loads too, to differentiate through the
     physics with ``wp.Tape``; without it a first build compiles faster (the env never needs gradients)."""
@@ -147,6 +155,11 @@ class SimConfig:
     def env_dt(self) -> float:
         """Duration of one env step (s)."""
         return self.physics_dt * self.decimation
+
+    def tiles(self, device: str) -> bool:
+        """Whether SolverFeatherstone takes the tile path (``tile_gemm``) on ``device``."""
+        return self.solver == "featherstone" and (self.tile_gemm == "on"
+                                                  or self.tile_gemm == "auto" and device.startswith("cuda"))
 
 
 Point = tuple[Finite, Finite, Finite]
@@ -328,6 +341,8 @@ class EnvConfig(Generic[TaskT]):
         require(history < 2**31, f"randomization.action_delay_steps={self.randomization.action_delay_steps} with "
                                  f"num_envs={self.num_envs:,} is an action history of {history:,} entries "
                                  f"(~{history * 4 / 1e9:,.1f} GB per action); Warp's arrays hold at most 2**31 - 1")
+        require(sim.tile_gemm != "on" or sim.solver == "featherstone",
+                "sim.tile_gemm='on' is SolverFeatherstone's tile path; sim.solver='mujoco' has none")
         require(not sim.held_joints or sim.solver == "featherstone",
                 f"sim.held_joints={sim.held_joints} needs sim.solver='featherstone' (its kinematic bodies)")
         require(sim.decimation % sim.mass_matrix_interval == 0,
