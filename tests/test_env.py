@@ -195,6 +195,25 @@ def test_captured_step_equals_uncaptured(task, solver, make, random_actions):
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_step_views_are_the_steps_results_and_the_next_step_overwrites_them(task, make, random_actions):
+    """``step_views`` gives what ``step`` gives (without the counters' totals), as the env's own buffers."""
+    actions = random_actions(16, 30, scale=1.0)
+    fresh, viewed = make(16, task_name=task, task=SHORT_EPISODES), make(16, task_name=task, task=SHORT_EPISODES)
+    for step_actions in actions:
+        expected = fresh.step(step_actions)
+        got = viewed.step_views(step_actions)
+        for want, have in zip(expected[:4], got[:4], strict=True):
+            assert torch.equal(want, have)
+        assert set(expected[4]) - set(got[4]) == {"nonfinite_actions", "nonfinite_states", "diverged_states"}
+        for key, value in got[4].items():
+            assert torch.equal(expected[4][key], value)
+    assert got[0].data_ptr() == viewed.obs_buf.data_ptr() and got[1].data_ptr() == viewed.reward_buf.data_ptr()
+    kept = got[0].clone()
+    viewed.step(actions[0])
+    assert not torch.equal(got[0], kept), "the next step wrote into the views"
+
+
+@pytest.mark.parametrize("task", TASKS)
 def test_sharded_threads_give_the_single_scene_trajectory(task, make, random_actions, device):
     """On the CPU 1024 envs split into two scenes stepped in two threads; the split must not change results."""
     sharded = make(1024, task_name=task, sim={"cpu_threads": 2}, task=SHORT_EPISODES)

@@ -275,6 +275,13 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
 
     def step(self, actions: "torch.Tensor"):
         """Apply actions for one env step: (obs, reward, terminated, truncated, info), autoresetting ended envs."""
+        obs, reward, terminated, truncated, _ = self.step_views(actions)
+        return obs.clone(), reward.clone(), terminated.clone(), truncated.clone(), self._outputs()
+
+    def step_views(self, actions: "torch.Tensor"):
+        """``step`` for a loop that uses each step's results before the next: the same (obs, reward, terminated,
+        truncated, info), as the zero-copy views that the next step overwrites, and ``info`` without the counters'
+        totals (``nonfinite_actions`` and the like: ``step`` sums them)."""
         import torch
 
         n, a = self.num_envs, self.num_actions
@@ -282,8 +289,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         actions = self._check("actions", actions, shapes, torch.float32)
         self.actions_buf.copy_(actions.reshape(n, a))
         self._step()
-        return (self.obs_buf.clone(), self.reward_buf.clone(), self.terminated_buf.clone(),
-                self.truncated_buf.clone(), self._outputs())
+        return self.obs_buf, self.reward_buf, self.terminated_buf, self.truncated_buf, dict(self.buffers.torch.info)
 
     def set_state(self, states: "torch.Tensor", mask: "torch.Tensor | None" = None) -> "torch.Tensor":
         """Start new episodes from ``states`` (N, 2 x joint roles): for each role in ``joint_roles`` order, its

@@ -26,7 +26,9 @@ class RslRlVecEnv(VecEnv):
     ``dones`` is terminated | truncated (int64); ``extras["time_outs"]`` marks truncations so PPO bootstraps them.
     ``extras`` also carries the env's ``info`` (``episode_return``, ``episode_length``, ``end_reason``,
     ``final_obs``: valid where ``dones``), from which a training loop can keep episode statistics without indexing or
-    a host sync per step.
+    a host sync per step. The observations are fresh tensors (rsl-rl's PPO keeps them until after the next step);
+    the rewards, ``time_outs`` and the ``info`` tensors are the env's views (``BatchedEnv.step_views``), which the next
+    step overwrites: rsl-rl uses them at once, and a loop that keeps them clones them.
 
     With an ``evaluation`` (``InStepEvaluation``: the env's last envs) rsl-rl sees only the envs before it; each step
     steps the evaluation's envs too, with the evaluation's actions, and hands it their results.
@@ -70,7 +72,8 @@ class RslRlVecEnv(VecEnv):
         n, evaluation, actions = self.num_envs, self.evaluation, actions.to(torch.float32)
         if evaluation is not None:
             actions = torch.cat([actions.reshape(n, -1), evaluation.actions()])
-        obs, reward, terminated, truncated, info = self.env.step(actions)
+        obs, reward, terminated, truncated, info = self.env.step_views(actions)
+        obs = obs.clone()
         if evaluation is not None:
             evaluation.after_step(obs[n:], reward[n:], terminated[n:], truncated[n:])
             reward, terminated, truncated = reward[:n], terminated[:n], truncated[:n]
