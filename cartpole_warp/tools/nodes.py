@@ -4,11 +4,12 @@ operation's device time.
     python -m cartpole_warp.tools.nodes --task cart-three-pole-swingup --device cuda:0
     python -m cartpole_warp.tools.nodes --task cartpole-swingup --device cpu --tile-gemm off on
 
-Warp counts them itself, two ways: the nodes of a graph captured around one env step of
-one shard (a CUDA graph's nodes as Warp's DOT export of it lists them; a CPU graph's operations as Warp records them
-for its replay), and the kernels that Warp's launch log names in one uncaptured step. On CUDA, Warp's timing API gives
-every kernel, copy and memset its device time, as means over ``--steps`` uncaptured env steps (the CPU has no such
-API). Work outside Warp (torch's, around ``env.step``) is not an env step's node: ``tools.timing`` times it.
+Warp counts them itself, two ways: the nodes of a graph captured around one env step of one shard (a CUDA graph's
+nodes as Warp's DOT export of it lists them; a CPU graph's operations as Warp records them for its replay), and the
+kernels that Warp's launch log names in one uncaptured step. The graph's replay is timed on either device; on CUDA,
+Warp's timing API gives every kernel, copy and memset its device time, as means over ``--steps`` uncaptured env steps
+(the CPU has no such API). Work outside Warp (torch's, around ``env.step``) is no node of the step: ``tools.timing``
+times it.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import collections
 import re
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,6 +39,8 @@ class StepNodes:
     """Operations of the step's captured graph (kernels, copies, memsets and the like)."""
     kernels: collections.Counter[str] = field(default_factory=collections.Counter)
     """Kernel launches by kernel name (Warp's launch log of one uncaptured step)."""
+    replay_ms: float = 0.0
+    """Wall milliseconds of one replay of the step's graph (the mean of ``steps``, the device synchronised)."""
     device_us: dict[str, tuple[float, float]] = field(default_factory=dict)
     """On CUDA: per operation name (Warp's timing API: 'forward kernel NAME', 'memcpy ...', 'memset ...'), its
     launches and its device time (us) per env step; empty on the CPU."""
@@ -100,7 +104,12 @@ def step_nodes(env: BatchedEnv, steps: int = 20) -> StepNodes:
         env.shard_step(shard)
     with wp.ScopedCapture(device=device) as capture:
         env.shard_step(shard)
-    found = StepNodes(graph_nodes(capture.graph), log.kernels)
+    wp.synchronize_device(device)
+    start = time.perf_counter()
+    for _ in range(steps):
+        wp.capture_launch(capture.graph)
+    wp.synchronize_device(device)
+    found = StepNodes(graph_nodes(capture.graph), log.kernels, (time.perf_counter() - start) / steps * 1e3)
     if wp.get_device(device).is_cuda:
         wp.timing_begin(cuda_filter=wp.TIMING_KERNEL | wp.TIMING_MEMCPY | wp.TIMING_MEMSET)
         for _ in range(steps):
@@ -118,7 +127,7 @@ def report(found: StepNodes, env: BatchedEnv) -> str:
     launches = sum(found.kernels.values())
     lines = [f"{type(env).__name__}, {env.shards[0].num_envs:,} envs ({len(env.shards)} shard(s)) on {env.device}: "
              f"{found.nodes} Warp operations per env step ({launches} kernel launches, "
-             f"{found.nodes - launches} copies, memsets and others)"]
+             f"{found.nodes - launches} copies, memsets and others); its graph replays in {found.replay_ms:.3f} ms"]
     if found.device_us:
         total = sum(us for _, us in found.device_us.values())
         lines.append(f"  device time per env step: {total:,.1f} us (launch by launch, uncaptured)")
@@ -144,7 +153,7 @@ class NodesArgs:
     preset: str | None = None
     """Config preset of the env (None: the task's defaults)."""
     steps: int = 20
-    """Uncaptured env steps that Warp's timing API averages over (CUDA)."""
+    """Env steps averaged over: the graph's replays, and the uncaptured steps that Warp's timing API times (CUDA)."""
 
 
 def main(argv: list[str] | None = None) -> int:
