@@ -5,6 +5,7 @@ import collections
 
 import pytest
 import warp as wp
+from conftest import DEVICE
 
 from cartpole_warp import tasks
 from cartpole_warp.tools import nodes
@@ -80,3 +81,19 @@ def test_the_program_prints_both_paths(capsys):
     out = capsys.readouterr().out
     assert "sim.tile_gemm=off (tile path: False)" in out and "sim.tile_gemm=on (tile path: True)" in out
     assert out.count("Warp operations per env step") == 2
+
+
+@pytest.mark.parametrize("tile_gemm", ["off", "on"])
+def test_on_a_gpu_the_graphs_nodes_are_the_operations_warps_timing_records(tile_gemm):
+    """On CUDA (``CARTPOLE_TEST_DEVICE=cuda:0``): the captured graph's nodes (Warp's DOT export) are the kernels,
+    copies and memsets that Warp's timing API records in an uncaptured step."""
+    if not DEVICE.startswith("cuda"):
+        pytest.skip("needs a GPU: CARTPOLE_TEST_DEVICE=cuda:0 python -m pytest tests/test_nodes.py")
+    env = tasks.make("cart-three-pole-swingup", num_envs=64, device=DEVICE, seed=0, sim={"tile_gemm": tile_gemm})
+    try:
+        found = nodes.step_nodes(env, steps=3)
+    finally:
+        env.close()
+    assert found.nodes == round(sum(count for count, _ in found.device_us.values()))
+    kernels = sum(count for name, (count, _) in found.device_us.items() if name.startswith("forward kernel"))
+    assert kernels == sum(found.kernels.values())

@@ -63,18 +63,16 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
     """``num_envs`` copies of a task's robot stepped together on persistent Warp buffers (the machinery of every task:
     a task subclasses it with its ``TaskDeclaration``). Envs that end are reset within the same ``step``: the returned
     observation is the new episode's first one, and ``info["final_obs"]`` holds the observation at which the episode
-    ended. ``step`` returns fresh tensors; ``obs_buf`` and friends are the zero-copy views the next step overwrites.
-
-    ``info`` keys (tensors on ``device``): ``final_obs`` (N, num_obs); ``episode_return`` (N,), ``episode_length``
-    (N,) and ``end_reason`` (N,) int32 (codes named by ``end_reasons``), valid where terminated | truncated;
-    ``nonfinite_actions``, ``nonfinite_states`` and ``diverged_states`` (scalars, totals since construction):
-    non-finite actions are applied as 0, and a non-finite physics state, or one beyond ``sim.divergence_limit``, ends
-    its episode (reward 0) with the last sound observation.
+    ended. ``step`` returns fresh tensors, ``step_views`` the zero-copy views (``obs_buf`` and friends) that the next
+    step overwrites. ``info`` keys (tensors on ``device``): ``final_obs`` (N, num_obs); ``episode_return`` (N,),
+    ``episode_length`` (N,) and ``end_reason`` (N,) int32 (codes named by ``end_reasons``), valid where terminated |
+    truncated; ``nonfinite_actions``, ``nonfinite_states`` and ``diverged_states`` (scalars, totals since
+    construction): non-finite actions are applied as 0, and a non-finite physics state, or one beyond
+    ``sim.divergence_limit``, ends its episode (reward 0) with the last sound observation.
 
     On the CPU the envs are split into ``shards`` (one Newton scene each) stepped in parallel threads
-    (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0.
-
-    Each env simulates its own physical parameters (``physical_params()``): the stage's, or drawn by the config's
+    (``sim.cpu_threads``); results do not depend on the split. ``scene`` is the scene holding env 0. Each env
+    simulates its own physical parameters (``physical_params()``): the stage's, or drawn by the config's
     ``randomization`` at each episode start (or once), or set by ``set_physical_params``.
     """
 
@@ -192,8 +190,7 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         shard.scene.simulate(self.cfg.sim.physics_dt, self.cfg.sim.decimation, friction)
 
     def physics_step(self, shard: Shard):
-        """Random actions in [-1, 1], the task's joint forces and ``decimation`` solver steps for one shard: an env step
-        without observations, rewards or resets (what ``tools.bench`` times as the physics alone)."""
+        """Random actions, the task's joint forces and the solver steps of one shard's env step (``tools.bench``)."""
         b = self.buffers
         wp.launch(self._kernels.random_actions, dim=shard.num_envs, inputs=[shard.rows(b.episodes.rng_state)],
                   outputs=[shard.rows(b.actions)], device=self.device)
@@ -242,9 +239,8 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
         return check_tensor(name, value, shapes, dtype, self.device)
 
     def _outputs(self):
-        info = {k: v.clone() for k, v in self.buffers.torch.info.items()}
-        info.update({k: v.sum() for k, v in self.buffers.torch.counters.items()})
-        return info
+        views = self.buffers.torch
+        return {k: v.clone() for k, v in views.info.items()} | {k: v.sum() for k, v in views.counters.items()}
 
     def reset(self, seed: int | None = None) -> "tuple[torch.Tensor, dict]":
         """Start a new episode in every env (re-seeding the RNG when ``seed`` is given): (obs, info)."""
@@ -275,18 +271,15 @@ class BatchedEnv(VectorSpaces, TaskDeclaration):
 
     def step(self, actions: "torch.Tensor"):
         """Apply actions for one env step: (obs, reward, terminated, truncated, info), autoresetting ended envs."""
-        obs, reward, terminated, truncated, _ = self.step_views(actions)
-        return obs.clone(), reward.clone(), terminated.clone(), truncated.clone(), self._outputs()
+        return (*(view.clone() for view in self.step_views(actions)[:4]), self._outputs())
 
     def step_views(self, actions: "torch.Tensor"):
-        """``step`` for a loop that uses each step's results before the next: the same (obs, reward, terminated,
-        truncated, info), as the zero-copy views that the next step overwrites, and ``info`` without the counters'
-        totals (``nonfinite_actions`` and the like: ``step`` sums them)."""
+        """``step`` as the zero-copy views that the next step overwrites (for a loop that uses each step's results at
+        once), ``info`` without the counters' totals (``nonfinite_actions`` and the like)."""
         import torch
 
         n, a = self.num_envs, self.num_actions
-        shapes = ((n, a), (n,)) if a == 1 else ((n, a),)
-        actions = self._check("actions", actions, shapes, torch.float32)
+        actions = self._check("actions", actions, ((n, a), (n,)) if a == 1 else ((n, a),), torch.float32)
         self.actions_buf.copy_(actions.reshape(n, a))
         self._step()
         return self.obs_buf, self.reward_buf, self.terminated_buf, self.truncated_buf, dict(self.buffers.torch.info)
