@@ -1,1 +1,1 @@
-"""Programs that measure (bench, sweep, timing, encoder, sysid, gradcheck); never imported by the library."""
+"""Programs that measure (bench, sweep, timing, nodes, encoder, sysid, multiarm, gradcheck); never imported by the library."""
