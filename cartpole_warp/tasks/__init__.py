@@ -27,6 +27,12 @@ DEFAULT_TASK = "cartpole-balance"
 """The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""
 
 
+DENSE_PATH = {"env": {"sim": {"tile_gemm": "off"}}}
+"""The defaults of a task whose GPU seeds were measured on SolverFeatherstone's dense path alone: the tile path
+(``sim.tile_gemm``, 'auto' on CUDA) rounds differently, every seed's run with it, and a chain's seed that solved on
+one path did not on the other (docs/benchmarks.md, 2026-12-01). A task takes 'auto' once its seeds are re-measured."""
+
+
 APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,
                                                     "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
                                                     "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},

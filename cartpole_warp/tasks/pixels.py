@@ -5,7 +5,7 @@ sees the last frames (``env.camera``), the critic the task's state (an asymmetri
 import dataclasses
 
 from ..settings.config import merge
-from . import balance, double_pole, register, swingup
+from . import DENSE_PATH, balance, double_pole, register, swingup
 
 PIXEL_AGENT = {"agent": {"algorithm": {"symmetry": False}, "actor": {"hidden_dims": [64, 64]}}}
 """What a policy from pixels changes in its twin's training settings (the symmetry signs mirror states, not images)."""
@@ -33,7 +33,7 @@ more iterations than its twin."""
 def from_pixels(task, name: str, image: str, camera: dict, gym_id: str, summary: str, agent: dict | None = None):
     """``task`` seen by a camera (``image`` 'rgb' or 'depth'), registered as ``name``; ``agent``: training settings of
     its own on top of ``PIXEL_AGENT``."""
-    defaults = merge(merge(merge(task.defaults, PIXEL_AGENT), agent or {}),
+    defaults = merge(merge(merge(merge(task.defaults, PIXEL_AGENT), agent or {}), DENSE_PATH),
                      {"env": {"camera": {"image": image, **camera}}})
     return register(dataclasses.replace(task, name=name, defaults=defaults, summary=summary, gym_ids={gym_id: None},
                                         gpu_defaults={}, cpu_defaults={}))  # the twin's are about its MLP

@@ -6,7 +6,7 @@ docstring."""
 from dataclasses import dataclass, replace
 
 from ..settings.config import Name, merge
-from . import SolvedRule, learner_defaults, register, swingup
+from . import DENSE_PATH, SolvedRule, learner_defaults, register, swingup
 
 
 @dataclass
@@ -68,15 +68,14 @@ for env_class, words, min_reward_per_step, width, steps_per_env, gpu_defaults, g
     # thousands of iterations: an evaluation at most every 100, so that evaluations stay a small part of training;
     # wider networks than the single pole's 32 x 32, with which the chains levelled off, and for two poles 32 steps
     # per env, with which every seed solved; on a GPU the three poles evaluate inside the training's step, where
-    # their many evaluations cost more than the extra envs and the verdict's wait (docs/benchmarks.md). Both keep
-    # SolverFeatherstone's dense path on a GPU too: every seed of theirs was measured on it, and on the tile path
-    # (sim.tile_gemm on: a 2.6x faster three-pole step) the two poles' seed 0 did not solve (docs/benchmarks.md)
+    # their many evaluations cost more than the extra envs and the verdict's wait (docs/benchmarks.md); the dense path
+    # (DENSE_PATH): on the tile path, a 2.7x faster three-pole step, the two poles' seed 0 did not solve
     networks = {"hidden_dims": [width, width]}
     register(replace(
         swingup.TASK, name=f"cart-{words}-pole-swingup", env_class=env_class,
         summary=f"swing a chain of {words} poles up and hold it (dm_control's {words}_poles, 10 N cart, 10 s episodes)",
         solved=SolvedRule(min_reward_per_step=min_reward_per_step, full_episodes_only=True),
-        defaults=merge(swingup.TASK.defaults, {"env": {"sim": {"tile_gemm": "off"}},
+        defaults=merge(swingup.TASK.defaults, {**DENSE_PATH,
                                                "agent": {"max_iterations": 15000, "num_steps_per_env": steps_per_env,
                                                          "actor": networks, "critic": networks},
                                                "eval": {"max_interval": 100}}),

@@ -1,7 +1,7 @@
 """Throughput benchmark: env-steps/s of the physics alone and of the full env step, over a sweep of num_envs.
 
 Run: ``python -m cartpole_warp.tools.bench --device cpu [--task cartpole-swingup] [--num-envs 64 1024 4096]
-[--solver featherstone mujoco] [--randomization off robust]``
+[--solver featherstone mujoco] [--tile-gemm off on] [--randomization off robust]``
 
 "Physics alone" replays a captured graph of random actions -> the task's joint forces -> ``decimation`` solver steps
 (``BatchedEnv.physics_step``), without observations, rewards or resets; "full step" times ``env.step`` (action copy,
@@ -26,7 +26,7 @@ from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
 from ..engine.runtime import GraphReplay, resolve_device
 from ..engine.scene import StageError
-from ..settings.config import Capture, ConfigError, EnvConfig, Solver, require
+from ..settings.config import Capture, ConfigError, EnvConfig, Solver, Switch, require
 from ..settings.presets import load_preset
 
 
@@ -74,6 +74,11 @@ def full_step_rate(task: str, cfg: EnvConfig, min_seconds: float) -> tuple[float
         env.close()
 
 
+def tile_setting(tiles: Switch | None) -> dict:
+    """``sim.tile_gemm`` where the sweep names it (None: the task's own)."""
+    return {} if tiles is None else {"tile_gemm": tiles}
+
+
 def device_name(device: str) -> str:
     if device.startswith("cuda"):
         return torch.cuda.get_device_name(device)
@@ -92,6 +97,8 @@ class BenchArgs:
     """Solvers to measure."""
     capture: list[Capture] = field(default_factory=lambda: ["auto"])
     """Graph capture settings of the full env step to measure."""
+    tile_gemm: list[Switch] | None = None
+    """SolverFeatherstone's paths to measure (``sim.tile_gemm``: 'auto', 'on', 'off'; default: the task's own)."""
     cpu_threads: list[int] = field(default_factory=lambda: [0])
     """sim.cpu_threads values to sweep on the CPU (0 = one per core)."""
     preset: str | None = None
@@ -110,23 +117,25 @@ def main(argv: list[str] | None = None) -> int:
         require(math.isfinite(args.seconds) and args.seconds > 0, f"--seconds must be finite and > 0, got "
                                                                   f"{args.seconds}")
         sweep = args.num_envs or ([4096, 16384, 65536] if args.device.startswith("cuda") else [64, 1024, 4096])
-        sweeps = itertools.product(args.solver, args.capture, args.cpu_threads, sweep, args.randomization)
+        sweeps = itertools.product(args.solver, args.tile_gemm or [None], args.capture, args.cpu_threads, sweep,
+                                   args.randomization)
         configs = [(randomized, tasks.env_config(
             args.task, args.preset, num_envs=n, device=args.device, seed=0,
-            sim={"solver": solver, "capture": capture, "cpu_threads": threads},
+            sim={"solver": solver, "capture": capture, "cpu_threads": threads} | tile_setting(tiles),
             randomization=None if randomized == "off" else load_preset(randomized).get("env", {})["randomization"]))
-            for solver, capture, threads, n, randomized in sweeps]
+            for solver, tiles, capture, threads, n, randomized in sweeps]
         print(f"device: {args.device} ({device_name(resolve_device(args.device))})")
         print(f"task: {args.task}, preset: {args.preset}; env-steps/s (one env-step = one robot advanced one env "
               "step)")
-        print(f"{'solver':<13} {'capture':>7} {'shards':>6} {'num_envs':>9} {'randomization':>13} "
+        print(f"{'solver':<13} {'tiles':>5} {'capture':>7} {'shards':>6} {'num_envs':>9} {'randomization':>13} "
               f"{'physics alone':>15} "
               f"{'full step':>15} {'full/physics':>13}")
         for randomized, cfg in configs:
             physics = physics_rate(args.task, cfg, args.seconds)
             full, shards = full_step_rate(args.task, cfg, args.seconds)
-            print(f"{cfg.sim.solver:<13} {cfg.sim.capture:>7} {shards:>6} {cfg.num_envs:>9} {randomized:>13} "
-                  f"{physics:>15,.0f} {full:>15,.0f} {full / physics:>12.1%}", flush=True)
+            tiles = "on" if cfg.sim.tiles(args.device) else "off"
+            print(f"{cfg.sim.solver:<13} {tiles:>5} {cfg.sim.capture:>7} {shards:>6} {cfg.num_envs:>9} "
+                  f"{randomized:>13} {physics:>15,.0f} {full:>15,.0f} {full / physics:>12.1%}", flush=True)
     return 0
 
 
