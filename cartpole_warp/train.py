@@ -176,43 +176,49 @@ def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, RunError, StageError):
         with timed(timing_s, "config"):
-            ranks = Ranks.from_environment()
             cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
-        if args.population.seeds or args.population.vary:
-            return train_population(cfg, run_dir, checkpoint, args, timing_s)
-        if args.viewer == "viser":
-            check_browser_viewer(args)
-        with timed(timing_s, "imports"):
-            import torch
+        population = args.population.seeds or args.population.vary
+        code = (train_population if population else train_one)(cfg, run_dir, checkpoint, args, timing_s)
+    if argv is None:
+        gc.freeze()  # the interpreter's final collection of Newton's objects would delay the exit
+    return code
 
-            from .rl.training import Training, check_memory
 
-        if not ranks.distributed:  # before the build
-            if cfg.env.device != "cpu" and not torch.cuda.is_available():
-                raise ConfigError(NO_CUDA.format(cfg.env.device))
-            check_memory(cfg, resolve_device(cfg.env.device))
+def train_one(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainArgs,
+              timing_s: dict[str, float]) -> int:
+    """One run in ``run_dir`` (over torchrun's processes, if any); 130 where interrupted."""
+    ranks = Ranks.from_environment()
+    if args.viewer == "viser":
+        check_browser_viewer(args)
+    with timed(timing_s, "imports"):
+        import torch
+
+        from .rl.training import Training, check_memory
+
+    if not ranks.distributed:  # before the build
+        if cfg.env.device != "cpu" and not torch.cuda.is_available():
+            raise ConfigError(NO_CUDA.format(cfg.env.device))
+        check_memory(cfg, resolve_device(cfg.env.device))
+    if ranks.writes:
+        print(f"building {cfg.env.num_envs} envs on "
+              f"{f'{ranks.world_size} GPUs' if ranks.distributed else cfg.env.device}...", flush=True)
+    training, summary = None, None
+    try:
+        training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)
         if ranks.writes:
-            print(f"building {cfg.env.num_envs} envs on "
-                  f"{f'{ranks.world_size} GPUs' if ranks.distributed else cfg.env.device}...", flush=True)
-        training, summary = None, None
-        try:
-            training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)
-            if ranks.writes:
-                announce(training, args, run_dir, checkpoint)
-            summary = training.run()
-        finally:
-            if training is not None and training.runner.on_iteration is not None:
-                training.runner.on_iteration.close()
-            if torch.distributed.is_initialized():
-                torch.distributed.destroy_process_group()
-        if summary is None:
-            return 130 if training.runner.stop_reason == "interrupted" else 0
-        report(summary, run_dir, checkpoint)  # summary.json is written: a Ctrl-C now only cuts these lines short
-        if argv is None:
-            gc.freeze()  # the interpreter's final collection of Newton's objects would delay the exit
-        total = process_age_s() if argv is None else None
-        phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
-        print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
+            announce(training, args, run_dir, checkpoint)
+        summary = training.run()
+    finally:
+        if training is not None and training.runner.on_iteration is not None:
+            training.runner.on_iteration.close()
+        if torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
+    if summary is None:
+        return 130 if training.runner.stop_reason == "interrupted" else 0
+    report(summary, run_dir, checkpoint)  # summary.json is written: a Ctrl-C now only cuts these lines short
+    total = process_age_s() if "start" in timing_s else None
+    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
+    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
     return 130 if summary.status == "interrupted" else 0
 
 
