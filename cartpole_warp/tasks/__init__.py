@@ -30,7 +30,8 @@ DEFAULT_TASK = "cartpole-balance"
 DENSE_PATH = {"env": {"sim": {"tile_gemm": "off"}}}
 """The defaults of a task whose GPU seeds were measured on SolverFeatherstone's dense path alone: the tile path
 (``sim.tile_gemm``, 'auto' on CUDA) rounds differently, every seed's run with it, and a chain's seed that solved on
-one path did not on the other (docs/benchmarks.md, 2026-12-01). A task takes 'auto' once its seeds are re-measured."""
+one path did not on the other (docs/benchmarks.md, 2026-12-01). A task takes 'auto' once its seeds, run on both paths
+in one GPU session, all solve on tiles with a lower median and worst time to solved."""
 
 
 APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,

@@ -11,7 +11,7 @@ import warp as wp
 
 from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from ..settings.config import Finite, NonNegative, Positive, require
-from . import DENSE_PATH, SolvedRule, Task, register
+from . import SolvedRule, Task, register
 from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
@@ -117,7 +117,6 @@ TASK = register(Task(
     solved=SolvedRule(min_reward_per_step=0.9, min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
     gym_ids={"cartpole_warp/Cartpole-v0": None, "cartpole_warp/CartpoleTutorial-v0": "tutorial"},
-    defaults=DENSE_PATH,
     # on a CPU the networks' products and ELUs cost as much as the env: 8 x 8 solved seeds 0-9 as 32 x 32 did, sooner
     # (docs/benchmarks.md)
     cpu_defaults={"agent": {"actor": {"hidden_dims": [8, 8]}, "critic": {"hidden_dims": [8, 8]}}},

@@ -15,7 +15,7 @@ import warp as wp
 
 from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from ..settings.config import Finite, Name, NonNegative, Positive, require
-from . import DENSE_PATH, SolvedRule, Task, register
+from . import SolvedRule, Task, register
 from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
@@ -155,7 +155,7 @@ TASK = register(Task(
     summary="keep two poles in a chain upright on a cart (Newton's cart + double pendulum, 40 N cart, 10 s episodes)",
     solved=SolvedRule(min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
-    defaults={**DENSE_PATH, "agent": {"num_steps_per_env": 16, "max_iterations": 300,
-                                      "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},
+    defaults={"agent": {"num_steps_per_env": 16, "max_iterations": 300,
+                        "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},
     gym_ids={"cartpole_warp/CartDoublePole-v0": None},
 ))
