@@ -1,24 +1,26 @@
 """Populations (``train.py --seeds``, ``rl.population``): member k's block of the env starts as a solo env of its seed,
 members do not depend on each other's seeds or settings, a member's run folder plays and resumes as a solo run's, a
-member gone non-finite ends alone, bad population inputs are one line each; and every state task trains one.
+member gone non-finite ends alone, bad population inputs are one line each, Ctrl-C in the program finishes every
+member's folder; and every state task trains one.
 (The members' update against rsl-rl's own PPO: tests/test_population_ppo.py.)"""
 
 import dataclasses
 import json
+import signal
 import subprocess
 import sys
 
 import pytest
 import torch
 from conftest import DEVICE, call_main
-from test_train_cli import only_run
+from test_train_cli import REPO, only_run
 
 from cartpole_warp import tasks
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.population import members_of
 from cartpole_warp.rl.population_training import PopulationTraining
 from cartpole_warp.rl.runner import TaskRunner
-from cartpole_warp.rl.runs import POPULATION_FILE
+from cartpole_warp.rl.runs import CONFIG_FILE, CURVE_FILE, EXPORT_DIR, MEMBERS_FILE, POPULATION_FILE, SUMMARY_FILE
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
@@ -106,6 +108,38 @@ def test_a_members_run_folder_plays_and_resumes_as_a_solo_run(tmp_path):
     first = torch.load(member / "model_1.pt", weights_only=False)
     before = {state["step"].item() for state in first["optimizer_state_dict"]["state"].values()}
     assert len(steps) == len(before) == 1 and steps.pop() > before.pop() > 0, "Adam's steps carried over the resume"
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_the_population_program_finishes_every_members_folder_before_the_table(tmp_path):
+    """``python train.py --seeds`` in a process of its own (the program, whose exit freezes the garbage collector),
+    interrupted: exit 130, each member's folder finished as a solo run's (config, checkpoint, exports, curve, then
+    summary.json), then the population's table."""
+    cmd = [sys.executable, str(REPO / "train.py"), "--seeds", "0", "1", "--num-envs", "16", "--max-iterations", "10000",
+           "--device", "cpu", "--logger", "none", "--log-dir", str(tmp_path)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("it ") and line.split()[1].startswith("3/"):
+            proc.send_signal(signal.SIGINT)
+            break
+    out = "".join(lines) + proc.communicate(timeout=120)[0]
+    assert proc.returncode == 130 and "Traceback" not in out, out
+    run = only_run(tmp_path)
+    written = {}
+    for member in ("seed0", "seed1"):
+        folder = run / member
+        summary = json.loads((folder / SUMMARY_FILE).read_text())
+        assert summary["status"] == "interrupted" and summary["iterations"] >= 3, summary
+        files = [CONFIG_FILE, summary["checkpoint"], *summary["exports"], CURVE_FILE]
+        assert summary["exports"] == [f"{EXPORT_DIR}/policy.onnx", f"{EXPORT_DIR}/policy.pt"]
+        assert all((folder / name).stat().st_size > 0 for name in files)
+        written[member] = (folder / SUMMARY_FILE).stat().st_mtime_ns
+        assert max((folder / name).stat().st_mtime_ns for name in files) <= written[member], "summary.json comes last"
+    table = json.loads((run / POPULATION_FILE).read_text())
+    assert [row["status"] for row in table["members"]] == ["interrupted", "interrupted"]
+    assert (run / MEMBERS_FILE).stat().st_mtime_ns >= max(written.values())
 
 
 def test_torchrun_spreads_the_members_over_its_processes_and_each_share_trains_as_a_population_alone(repo, tmp_path):
