@@ -122,6 +122,18 @@ class SolvedRule:
         return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
                 and summary.time_limit_fraction >= self.min_time_limit_fraction)
 
+    def conditions(self, metrics: dict) -> list[tuple[str, float | None, float, bool]]:
+        """Each of the rule's conditions over ``metrics`` (``EpisodeSummary``'s means by name, e.g. an evaluation's in
+        a run's history): (the metric, its value, the minimum, whether it is met)."""
+        minimums = []
+        if self.min_reward_per_step is not None:
+            key = "full_reward_per_step" if self.full_episodes_only else "mean_reward_per_step"
+            minimums.append((key, self.min_reward_per_step))
+        if self.min_time_limit_fraction:
+            minimums.append(("time_limit_fraction", self.min_time_limit_fraction))
+        return [(key, metrics.get(key), minimum, metrics.get(key) is not None and metrics[key] >= minimum)
+                for key, minimum in minimums]
+
     def hopeless(self, failed: int, episodes: int) -> bool:
         """Whether ``failed`` of ``episodes`` episodes, ended before the time limit, already keep the rule from being
         met, whatever the others do (its time-limit fraction; a rule without one is never hopeless this way)."""
