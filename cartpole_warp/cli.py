@@ -137,17 +137,17 @@ def with_default_value(argv: list[str], flag: str, value: str) -> list[str]:
 
 
 def parse(cls: type[Args], default: Args, argv: list[str], description: str,
-          aliases: dict[str, str] | None = None) -> Args:
+          aliases: dict[str, str] | None = None, default_notes: dict[str, str] | None = None) -> Args:
     """tyro's parse of ``argv`` into ``cls``, starting from ``default``, with the program's short flags (``aliases``:
     short flag -> the field's flag); bad or unknown flags exit with code 2 and tyro's message naming the flag.
-    ``--help`` prints ``short_help``, ``--help-all`` tyro's help of every flag."""
+    ``--help`` prints ``short_help`` (with ``default_notes``), ``--help-all`` tyro's help of every flag."""
     aliases = aliases or {}
     if FULL_HELP in argv:
         argv = ["--help"]
         if aliases:
             description += "\n\nshort flags: " + ", ".join(f"{short} = {flag}" for short, flag in aliases.items())
     elif asks_help(argv):
-        print(short_help(cls, default, description, aliases))
+        print(short_help(cls, default, description, aliases, default_notes=default_notes))
         sys.exit(0)
     try:
         return tyro.cli(cls, default=default, args=expand_aliases(argv, aliases), description=description)
@@ -158,11 +158,14 @@ def parse(cls: type[Args], default: Args, argv: list[str], description: str,
         raise
 
 
-def short_help(cls: type[Args], default: Args, description: str, aliases: dict[str, str], width: int = 100) -> str:
+def short_help(cls: type[Args], default: Args, description: str, aliases: dict[str, str], width: int = 100,
+               default_notes: dict[str, str] | None = None) -> str:
     """``description``, then the flags of the top level and the short flags (``aliases``: ``--num-envs`` for
     ``--env.num-envs``), but those whose help starts with another flag (an option of that flag, e.g. "--video: env
-    steps per clip"): each with the first sentence of its help and its default, from the parser tyro builds for
-    ``--help-all`` (which lists the other flags, every config field, in groups)."""
+    steps per clip"): each with the first sentence of its help and its default (and ``default_notes``' words on it, by
+    flag), from the parser tyro builds for ``--help-all`` (which lists the other flags, every config field, in
+    groups)."""
+    default_notes = default_notes or {}
     short_of = {flag: short for short, flag in aliases.items()}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # tyro 1.0 deprecates get_parser, not yet removed
@@ -180,6 +183,8 @@ def short_help(cls: type[Args], default: Args, description: str, aliases: dict[s
         text = " ".join((action.help or "").split())
         default_text = text[text.rfind("(default:"):] if "(default:" in text else ""
         first = re.split(r"(?<=\.)\s", text.removesuffix(default_text).strip(), maxsplit=1)[0]
+        if short[0] in default_notes and default_text:
+            default_text = f"{default_text.removesuffix(')')}; {default_notes[short[0]]})"
         wrapped = textwrap.fill(f"{first} {default_text}".strip(), width, initial_indent=" " * 6,
                                 subsequent_indent=" " * 6)
         common.append(f"  {', '.join(short)}{metavar}\n{wrapped}")

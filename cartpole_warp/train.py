@@ -17,7 +17,7 @@ from __future__ import annotations
 import gc
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Annotated, Generic, Literal
 
@@ -41,6 +41,7 @@ from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, device_settings, learner_settings, on_gpu, train_config
 from .rl.distributed import Ranks
+from .rl.learner import LEARNERS
 from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable
@@ -115,6 +116,35 @@ def task_list() -> str:
     return "tasks (--task):\n" + "\n".join(f"    {name:<{width}}  {tasks.get(name).summary}" for name in tasks.names())
 
 
+def flat_fields(cfg: TrainConfig) -> dict[str, str]:
+    """``cfg``'s fields by dotted name (``agent.max_iterations``), each value as its repr."""
+    def walk(prefix: str, data: dict):
+        for key, value in data.items():
+            yield from walk(f"{prefix}{key}.", value) if isinstance(value, dict) else [(f"{prefix}{key}", repr(value))]
+
+    return dict(walk("", asdict(cfg)))
+
+
+def default_notes(cfg: TrainConfig) -> dict[str, str]:
+    """For --help, by short flag: that ``cfg.task`` and ``cfg.env.device`` are whose defaults it shows, which short
+    flags' defaults another task or learner sets (compared over every registered task and every learner), and which
+    fields the other device changes for this task."""
+    shown = {short: flag.removeprefix("--").replace("-", "_") for short, flag in ALIASES.items()
+             if short not in ("--device", "--learner") and flag.startswith(("--env.", "--agent."))}
+    by_task = [flat_fields(train_config(name, None, cfg.env.device)) for name in tasks.names()]
+    by_learner = [flat_fields(train_config(cfg.task, None, cfg.env.device, learner)) for learner in LEARNERS]
+    other_device = "cuda" if cfg.env.device == "cpu" else "cpu"
+    here, there = flat_fields(cfg), flat_fields(train_config(cfg.task, None, other_device, cfg.agent.learner))
+    device_fields = [name for name in here if name != "env.device" and here[name] != there[name]]
+    notes = {"--task": "the defaults shown are its own",
+             "--device": f"{other_device} changes {', '.join(device_fields)}" if device_fields else ""}
+    for short, name in shown.items():
+        setters = [by for by, configs in (("--task", by_task), ("--learner", by_learner))
+                   if len({c[name] for c in configs}) > 1]
+        notes[short] = f"set by {' and '.join(setters)}" if setters else ""
+    return {short: note for short, note in notes.items() if note}
+
+
 def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
     """(config, run folder, checkpoint to resume from or None) from the command line."""
     cfg, run_dir, checkpoint, _ = resolve_args(argv)
@@ -145,7 +175,8 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
         base = train_config(first.task or tasks.DEFAULT_TASK, first.config, getattr(first, "env.device"),
                             getattr(first, "agent.learner"))
     cls = TrainArgs[type(base.env.task)]
-    args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES)
+    notes = default_notes(base) if asks_help(argv) else None
+    args = parse(cls, cls(cfg=base, config=first.config), argv, f"{__doc__}\n{task_list()}", ALIASES, notes)
     require(args.cfg.task == base.task, "--task must come as one flag (it picks the task's settings)")
     require(args.viser.problem() is None, args.viser.problem())
     require(math.isfinite(args.viewer_interval_s) and args.viewer_interval_s >= 0,

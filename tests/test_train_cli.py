@@ -378,6 +378,31 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
 
+def dotted(settings: dict, prefix: str = "") -> set[str]:
+    """The dotted names of a task's nested settings (``Task.gpu_defaults``: ``agent.algorithm.num_mini_batches``)."""
+    return set().union(*(dotted(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}"}
+                         for key, value in settings.items()))
+
+
+def test_help_says_whose_defaults_it_shows_and_what_sets_them(run_main):
+    """--help's defaults are one task's on one device: it says so, names the flags whose default another task or
+    learner sets, and the fields the other device changes (the task's own CPU and GPU settings)."""
+    def help_text(*args):
+        result = run_main("train", *args, "--help")
+        assert result.returncode == 0, result.stderr
+        return " ".join(result.stdout.split())
+
+    plain = help_text()
+    assert "(default: cartpole-balance; the defaults shown are its own)" in plain
+    assert "(default: 150; set by --task and --learner)" in plain and "(default: 4096; set by --learner)" in plain
+    swingup = tasks.get("cartpole-swingup")
+    for device, other in (("cpu", "cuda"), ("cuda", "cpu")):
+        text = help_text("--task", swingup.name, "--device", device)
+        assert f"(default: {swingup.defaults['agent']['max_iterations']}; set by --task and --learner)" in text
+        changed = text.split(f"(default: {device}; {other} changes ", 1)[1].split(")", 1)[0].split(", ")
+        assert set(changed) == dotted(swingup.gpu_defaults) | dotted(swingup.cpu_defaults), changed
+
+
 @pytest.mark.parametrize("args, message", [
     (["--num-envs", "0"], "error: invalid config: env.num_envs: Input should be greater than or equal to 1 (got 0)"),
     (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),

@@ -38,7 +38,7 @@ class TrainConfig(RunSettings, Generic[TaskT]):
 
     env: EnvConfig[TaskT]
     task: Name = tasks.DEFAULT_TASK
-    """The registered task (``cartpole_warp.tasks.names()``); set it with --task, which picks its settings."""
+    """The registered task (``cartpole_warp.tasks.names()``), which picks its settings."""
     agent: RunnerConfig = field(default_factory=RunnerConfig)
 
     @property

@@ -188,7 +188,7 @@ class RunnerConfig:
     num_steps_per_env: Count = 8
     """Env steps collected per env per iteration; a rollout holds num_envs * num_steps_per_env steps."""
     max_iterations: Count = 150
-    """PPO iterations to run (on --resume: iterations to add)."""
+    """Iterations to run (on --resume: to add)."""
     init_at_random_ep_len: Flag = True
     """Start training with each env's time-out counter at a random point of the time limit (rsl-rl's ``learn``
     argument, as Isaac Lab's train script sets it): time-outs, hence resets from random states, spread over every

@@ -307,7 +307,7 @@ class EnvConfig(Generic[TaskT]):
     num_envs: Count = 4096
     """Number of robots simulated in parallel (per GPU when torchrun starts several processes)."""
     device: str = "cpu"
-    """Warp / torch device: 'cpu', 'cuda' or 'cuda:N' (under torchrun each process takes cuda:$LOCAL_RANK)."""
+    """Warp / torch device: 'cpu', 'cuda' or 'cuda:N' (torchrun: cuda:$LOCAL_RANK in each process)."""
     seed: Seed = 0
     """Seed of the per-env reset RNG (and of torch in train.py; seed + rank under torchrun); the same seed gives the
     same trajectory."""
