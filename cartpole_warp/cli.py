@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import argparse
+import difflib
+import io
 import logging
 import os
 import re
@@ -12,7 +14,7 @@ import sys
 import textwrap
 import warnings
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
@@ -149,13 +151,43 @@ def parse(cls: type[Args], default: Args, argv: list[str], description: str,
     elif asks_help(argv):
         print(short_help(cls, default, description, aliases, default_notes=default_notes))
         sys.exit(0)
+    report = io.StringIO()  # what tyro writes to stderr: its error box, shown where the error is not an unknown flag
     try:
-        return tyro.cli(cls, default=default, args=expand_aliases(argv, aliases), description=description)
+        with redirect_stderr(report):
+            parsed = tyro.cli(cls, default=default, args=expand_aliases(argv, aliases), description=description)
     except SystemExit as exit_:
-        typed = sorted({flag_name(arg) for arg in argv} & aliases.keys())
-        if exit_.code and typed:  # tyro's message names the field's flag: say which short flag that was
-            print(f"({', '.join(f'{short} is {aliases[short]}' for short in typed)})", file=sys.stderr)
+        if exit_.code:
+            known = {flag_name(flag) for action in flag_parser(cls, default)._actions for flag in action.option_strings}
+            unknown = [flag_name(arg) for arg in argv
+                       if arg.startswith("-") and flag_name(arg) not in known | aliases.keys()]
+            if unknown:
+                print(f"error: {unknown_flag_line(unknown[0], known, aliases)}", file=sys.stderr)
+                sys.exit(2)
+        sys.stderr.write(report.getvalue())
+        named = sorted(short for short in {flag_name(arg) for arg in argv} & aliases.keys()
+                       if aliases[short] in report.getvalue())
+        if exit_.code and named:  # tyro's message names the field's flag: say which short flag that was
+            print(f"({', '.join(f'{short} is {aliases[short]}' for short in named)})", file=sys.stderr)
         raise
+    sys.stderr.write(report.getvalue())
+    return parsed
+
+
+def flag_parser(cls: type[Args], default: Args) -> argparse.ArgumentParser:
+    """The argparse parser tyro builds for ``cls`` (its ``--help-all``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # tyro 1.0 deprecates get_parser, not yet removed
+        return tyro.extras.get_parser(cls, default=default)
+
+
+def unknown_flag_line(flag: str, known: set[str], aliases: dict[str, str]) -> str:
+    """The error of an unknown ``flag``: the closest spelling ``--help`` shows (the short flags and the top level's),
+    else the closest of every flag (``known``)."""
+    shown = [name for name in sorted(known | aliases.keys()) if "." not in name and name not in aliases.values()]
+    close = (difflib.get_close_matches(flag, shown, n=1, cutoff=0.6)
+             or difflib.get_close_matches(flag, sorted(known), n=1, cutoff=0.6))
+    guess = f" (did you mean {close[0]}?)" if close else ""
+    return f"unknown flag {flag}{guess}; --help lists the common flags, {FULL_HELP} every one"
 
 
 def short_help(cls: type[Args], default: Args, description: str, aliases: dict[str, str], width: int = 100,

@@ -378,6 +378,20 @@ def test_help_shows_the_common_flags_and_help_all_every_config_field(run_main):
     assert f"configs/ ({', '.join(presets)})" in " ".join(train_help.split()), "--config lists every preset"
 
 
+def test_a_typod_flag_is_one_line_with_the_spelling_the_help_shows(run_main, trained):
+    _, run, _ = trained
+    for script, where in (("train", []), ("play", ["--run", run])):
+        result = run_main(script, "--num-env", "4096", "--device", "cpu", *where)
+        assert result.returncode == 2
+        assert result.stderr.splitlines() == [
+            "error: unknown flag --num-env (did you mean --num-envs?); --help lists the common flags, --help-all "
+            "every one"], result.stderr
+        assert "\n  --num-envs INT\n" in run_main(script, "--help").stdout, "the suggestion is the help's spelling"
+    value = run_main("train", "--num-envs", "abc", "--device", "cpu")
+    assert value.returncode == 2 and "invalid literal for int()" in value.stderr
+    assert "(--num-envs is --env.num-envs)" in value.stderr and "--device is" not in value.stderr, value.stderr
+
+
 def dotted(settings: dict, prefix: str = "") -> set[str]:
     """The dotted names of a task's nested settings (``Task.gpu_defaults``: ``agent.algorithm.num_mini_batches``)."""
     return set().union(*(dotted(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}"}
