@@ -36,10 +36,13 @@ from .rl.runs import (
     EXPORT_DIR,
     PLAY_DIR,
     RunError,
+    best_member,
     find_checkpoint,
     latest_run,
     load_config,
+    newer_populations,
     play_checkpoint,
+    population_members,
 )
 from .settings.config import ConfigError, EnvConfig, RandomizationConfig, TaskT, require
 from .settings.files import unwritable, write_text
@@ -132,6 +135,15 @@ class PlayArgs(Generic[TaskT]):
     grid: GridArgs = field(default_factory=GridArgs)
 
 
+def newest_run(log_dir: str, experiment: str) -> Path:
+    """``latest_run``, saying so where a population newer than that run is there too."""
+    run = latest_run(log_dir, experiment, "--experiment-name")
+    if newer := newer_populations(run):
+        print(f"note: playing {run}, the newest single run; the population {newer[-1]} is newer (play its "
+              f"best-evaluated member: --run {best_member(population_members(newer[-1]))})", flush=True)
+    return run
+
+
 def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     """(arguments, the run's config with the env flags applied, checkpoint or None)."""
     first = peek(argv, task=None, agent="trained", run=None, checkpoint=None, log_dir="logs", experiment_name=None,
@@ -141,8 +153,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     if first.agent != "trained" or asks_help(argv):
         cfg = train_config(task, first.config)
     else:
-        checkpoint = find_checkpoint(first.checkpoint, first.run, lambda: latest_run(
-            first.log_dir, first.experiment_name or task, "--experiment-name"), play_checkpoint, "--run")
+        checkpoint = find_checkpoint(first.checkpoint, first.run, lambda: newest_run(
+            first.log_dir, first.experiment_name or task), play_checkpoint, "--run")
         saved = checkpoint.parent / CONFIG_FILE
         cfg = load_config(checkpoint.parent) if saved.is_file() else train_config(task, first.config)
         physics_preset = saved.is_file() and first.config is not None

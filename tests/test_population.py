@@ -1,7 +1,7 @@
 """Populations (``train.py --seeds``, ``rl.population``): member k's block of the env starts as a solo env of its seed,
 members do not depend on each other's seeds or settings, a member's run folder plays and resumes as a solo run's, a
 member gone non-finite ends alone, bad population inputs are one line each, Ctrl-C in the program finishes every
-member's folder; and every state task trains one.
+member's folder, play.py and --resume name a population folder's members; and every state task trains one.
 (The members' update against rsl-rl's own PPO: tests/test_population_ppo.py.)"""
 
 import dataclasses
@@ -20,7 +20,16 @@ from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.population import members_of
 from cartpole_warp.rl.population_training import PopulationTraining
 from cartpole_warp.rl.runner import TaskRunner
-from cartpole_warp.rl.runs import CONFIG_FILE, CURVE_FILE, EXPORT_DIR, MEMBERS_FILE, POPULATION_FILE, SUMMARY_FILE
+from cartpole_warp.rl.runs import (
+    CONFIG_FILE,
+    CURVE_FILE,
+    EXPORT_DIR,
+    MEMBERS_FILE,
+    POPULATION_FILE,
+    SUMMARY_FILE,
+    best_member,
+    population_members,
+)
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
@@ -108,6 +117,46 @@ def test_a_members_run_folder_plays_and_resumes_as_a_solo_run(tmp_path):
     first = torch.load(member / "model_1.pt", weights_only=False)
     before = {state["step"].item() for state in first["optimizer_state_dict"]["state"].values()}
     assert len(steps) == len(before) == 1 and steps.pop() > before.pop() > 0, "Adam's steps carried over the resume"
+
+
+def test_play_and_resume_on_a_population_folder_name_its_members_and_plain_play_says_a_newer_one_exists(tmp_path):
+    solo = call_main("train", "--num-envs", "16", "--max-iterations", "1", "--device", "cpu", "--logger", "none",
+                     "--log-dir", tmp_path, "--run-name", "a")
+    assert solo.returncode == 0, solo.stderr
+    result = call_main("train", "--seeds", "4", "9", "--num-envs", "16", "--max-iterations", "1", "--device", "cpu",
+                       "--logger", "none", "--log-dir", tmp_path, "--run-name", "b")
+    assert result.returncode == 0, result.stdout + result.stderr
+    runs = sorted((tmp_path / "rsl_rl" / tasks.DEFAULT_TASK).iterdir())
+    assert [run.name.endswith(suffix) for run, suffix in zip(runs, "ab")] == [True, True]
+    population = runs[1]
+    hint = (f": it is a population of 2 members (seed4, seed9); give one member's folder, e.g. the best-evaluated, "
+            f"{population / 'seed4'}")
+    for script, flags in (("play", ["--headless", "--run", population]), ("train", ["--resume", population])):
+        refused = call_main(script, *flags)
+        assert refused.returncode == 2 and refused.stderr.splitlines() == [
+            f"error: no checkpoint (model_<iteration>.pt) in {population}{hint}"], refused.stderr
+    played = call_main("play", "--headless", "--log-dir", tmp_path, "--num-envs", "2", "--steps", "2")
+    assert played.returncode == 0, played.stderr
+    assert played.stdout.splitlines()[0] == (
+        f"note: playing {runs[0]}, the newest single run; the population {population} is newer (play its "
+        f"best-evaluated member: --run {population / 'seed4'})")
+
+
+def test_the_best_evaluated_member_is_a_solved_one_then_the_highest_play_metric(tmp_path):
+    def member(name, best):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps({"best": best}))
+        return {"member": name}
+
+    rows = [member("seed0", None), member("seed1", {"iteration": 9, "solved": False, "time_limit_fraction": 0.9}),
+            member("seed2", {"iteration": 9, "solved": True, "time_limit_fraction": 0.96}),
+            member("seed3", {"iteration": 9, "solved": False, "time_limit_fraction": 0.99})]
+    (tmp_path / POPULATION_FILE).write_text(json.dumps({"members": rows}))
+    members = population_members(tmp_path)
+    assert [m.name for m in members] == ["seed0", "seed1", "seed2", "seed3"]
+    assert best_member(members).name == "seed2", "solved beats a higher metric"
+    assert best_member(members[:2] + members[3:]).name == "seed3" and best_member(members[:1]).name == "seed0"
+    assert population_members(tmp_path / "seed0") == []
 
 
 @pytest.mark.slow

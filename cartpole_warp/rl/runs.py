@@ -73,8 +73,39 @@ def latest_checkpoint(run_dir: Path) -> Path:
         raise RunError(f"no run folder {run_dir}")
     checkpoints = list_checkpoints(run_dir)
     if not checkpoints:
-        raise RunError(f"no checkpoint (model_<iteration>.pt) in {run_dir}")
+        members = population_members(Path(run_dir))
+        hint = (f": it is a population of {len(members)} members ({', '.join(m.name for m in members)}); give one "
+                f"member's folder, e.g. the best-evaluated, {best_member(members)}" if members else "")
+        raise RunError(f"no checkpoint (model_<iteration>.pt) in {run_dir}{hint}")
     return checkpoints[-1]
+
+
+def population_members(folder: Path) -> list[Path]:
+    """The members' run folders of a population's folder (the one holding ``population.json``), else []."""
+    table = folder / POPULATION_FILE
+    return [folder / row["member"] for row in json.loads(table.read_text())["members"]] if table.is_file() else []
+
+
+def best_member(members: list[Path]) -> Path:
+    """The member whose best evaluation (``RunSummary.best``) is the best: solved first, then by its play metric;
+    the first member where none has been evaluated."""
+    def rank(member: Path) -> tuple:
+        summary = member / SUMMARY_FILE
+        best = (json.loads(summary.read_text()).get("best") if summary.is_file() else None) or {}
+        metric = next((value for key, value in best.items() if key not in ("iteration", "solved")), None)
+        return bool(best.get("solved")), metric if metric is not None else float("-inf")
+
+    return max(members, key=rank)
+
+
+def populations(experiment: Path) -> list[Path]:
+    """The population folders among an experiment's runs (``experiment_dir``), oldest first."""
+    return sorted(p for p in Path(experiment).glob("*") if population_members(p))
+
+
+def newer_populations(run_dir: Path) -> list[Path]:
+    """The population folders of ``run_dir``'s experiment newer than it (by name, i.e. timestamp)."""
+    return [p for p in populations(Path(run_dir).parent) if p.name > Path(run_dir).name]
 
 
 def play_checkpoint(run_dir: Path) -> Path:
@@ -108,6 +139,10 @@ def latest_run(log_dir: str | Path, experiment: str, experiment_flag: str = "--a
         others = sorted(p.name for p in root.parent.glob("*") if p.is_dir())
         hint = (f" (experiments there: {', '.join(others)}; pick one with --task or {experiment_flag})"
                 if others else "")
+        found = populations(root)
+        if found:
+            hint += (f"; it holds populations, the newest {found[-1]}: give one member's folder, e.g. "
+                     f"the best-evaluated, {best_member(population_members(found[-1]))}")
         raise RunError(f"no checkpoint under {root}{hint}; run train.py first or pass --checkpoint")
     return runs[-1]
 
