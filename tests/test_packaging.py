@@ -1,5 +1,6 @@
 """The built wheel works away from the repository: it carries the stage and the presets, and its env and trainer run
-from a folder outside the checkout in a fresh venv that already has the dependencies."""
+from a folder outside the checkout in a fresh venv that already has the dependencies; CI runs the README's test
+command."""
 
 import importlib.metadata
 import json
@@ -126,3 +127,15 @@ def test_the_wheel_lists_every_package_folder():
     listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     folders = {".".join(path.parent.relative_to(root).parts) for path in (root / "cartpole_warp").rglob("__init__.py")}
     assert folders <= listed, f"not in pyproject's packages: {sorted(folders - listed)}"
+
+
+def test_ci_runs_the_readmes_test_command_and_both_commands_install_torchs_cpu_build(repo):
+    """The README's first lines are two commands for a fresh machine; ``.ci/run`` ends in exactly the test one, and
+    both take torch's CPU build (PyPI's own Linux wheel brings the CUDA libraries)."""
+    readme = (repo / "README.md").read_text().splitlines()
+    commands = {line.split(":", 1)[0]: line.split("`")[1] for line in readme[:6] if line.startswith("Install and ")}
+    assert commands.keys() == {"Install and train (fresh machine, CPU)", "Install and test"}, commands
+    ci = (repo / ".ci" / "run").read_text().strip().splitlines()[-1]
+    assert ci == commands["Install and test"]
+    for command in commands.values():
+        assert "pip install torch==2.13.0 --extra-index-url https://download.pytorch.org/whl/cpu && " in command
