@@ -42,7 +42,7 @@ from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, device_settings, learner_settings, on_gpu, train_config
 from .rl.distributed import Ranks
 from .rl.learner import LEARNERS
-from .rl.runs import RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
+from .rl.runs import BEST_CHECKPOINT, RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable
 from .settings.presets import presets
@@ -327,15 +327,19 @@ def report(summary, run_dir: Path, checkpoint: Path | None):
     """The end of a run: what it did, when it was solved, where its artefacts are."""
     resumed = (f" of training over all its processes, {summary.timing_s['training']:.1f} s in this one"
                if checkpoint is not None else "")
-    print(f"{summary.status}: {summary.iterations} iterations, {summary.env_steps:,} env steps in "
-          f"{summary.train_time_s:.1f} s{resumed} ({summary.env_steps_per_s:,} steps/s)")
-    if summary.solved_at:
-        solved = summary.solved_at
-        print(f"solved at iteration {solved['iterations']} after {solved['train_time_s']:.1f} s "
-              f"({solved['env_steps']:,} env steps)")
+    done = (f"{summary.iterations} iterations, {summary.env_steps:,} env steps in {summary.train_time_s:.1f} s"
+            f"{resumed} ({summary.env_steps_per_s:,} steps/s)")
+    solved = summary.solved_at
+    if solved and summary.status == "solved":
+        print(f"solved at iteration {solved['iterations']} after {summary.train_time_s:.1f} s{resumed} "
+              f"({summary.env_steps:,} env steps, {summary.env_steps_per_s:,} steps/s)")
     else:
-        print("not solved yet: train longer (--max-iterations, or --resume)")
-    print(f"artefacts in {run_dir}: {summary.checkpoint}, summary.json, learning_curve.png, "
+        print(f"{summary.status}: {done}")
+        print(f"solved at iteration {solved['iterations']} after {solved['train_time_s']:.1f} s "
+              f"({solved['env_steps']:,} env steps)" if solved else
+              "not solved yet: train longer (--max-iterations, or --resume)")
+    best = [BEST_CHECKPOINT + " (play.py's)"] if (run_dir / BEST_CHECKPOINT).is_file() else []
+    print(f"artefacts in {run_dir}: {', '.join([summary.checkpoint, *best])}, summary.json, learning_curve.png, "
           f"{', '.join(summary.exports)}\nwatch it: python play.py --headless --run {run_dir}")
 
 

@@ -552,6 +552,12 @@ def train_to_solved_and_play(tmp_path, task: str, *flags) -> tuple[dict, dict]:
     assert summary["solved"] and summary["status"] == "solved" and summary["task"] == task, summary
     assert summary["best"] == {"iteration": summary["iterations"] - 1, "solved": True,
                                metric: summary["solved_at"][metric]}, "the stop's policy is the best one"
+    ending = result.stdout.splitlines()
+    said = ending.index(f"solved at iteration {summary['iterations']} after {summary['train_time_s']:.1f} s "
+                        f"({summary['env_steps']:,} env steps, {summary['env_steps_per_s']:,} steps/s)")
+    assert ending[said + 1] == (f"artefacts in {run}: {summary['checkpoint']}, model_best.pt (play.py's), "
+                                "summary.json, learning_curve.png, exported/policy.onnx, exported/policy.pt")
+    assert sum("solved" in line for line in ending[said:]) == 1, "the end says 'solved' once"
     result = call_main("play", "--headless", "--run", run)
     assert result.returncode == 0, result.stderr
     played = json.loads((run / "play" / "result.json").read_text())
