@@ -21,6 +21,7 @@ from typing import TypeVar
 
 import tyro
 
+from .settings.config import ConfigError
 from .settings.deprecation import REMOVED_IN
 
 Args = TypeVar("Args")
@@ -101,6 +102,22 @@ ENV_ALIASES = {"--num-envs": "--env.num-envs", "--device": "--env.device", "--se
 def flag_name(arg: str) -> str:
     """The flag of a command-line word, written with dashes (``--num_envs=8`` -> ``--num-envs``)."""
     return arg.partition("=")[0].replace("_", "-")
+
+
+@contextmanager
+def flags_named(argv: list[str], aliases: dict[str, str]) -> Iterator[None]:
+    """A ConfigError raised inside names each config field that ``argv`` set by the flag that set it, as typed
+    (``env.num_envs`` -> ``--num-envs``)."""
+    try:
+        yield
+    except ConfigError as err:
+        message = str(err)
+        for arg in argv:
+            typed = arg.partition("=")[0]
+            if typed.startswith("--"):
+                field = aliases.get(flag_name(typed), flag_name(typed)).removeprefix("--").replace("-", "_")
+                message = re.sub(rf"(?<![\w.]){re.escape(field)}(?![\w.])", typed, message)
+        raise ConfigError(message) from None
 
 
 def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:

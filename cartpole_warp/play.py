@@ -28,7 +28,17 @@ from typing import TYPE_CHECKING, Annotated, Generic, Literal
 import tyro
 
 from . import tasks
-from .cli import ENV_ALIASES, ViserArgs, asks_help, clean_errors, parse, peek, quiet_libraries, renamed_flags
+from .cli import (
+    ENV_ALIASES,
+    ViserArgs,
+    asks_help,
+    clean_errors,
+    flags_named,
+    parse,
+    peek,
+    quiet_libraries,
+    renamed_flags,
+)
 from .engine.scene import StageError
 from .rl.config import TrainConfig, checked, train_config, with_env_preset
 from .rl.runs import (
@@ -177,7 +187,8 @@ def resolve(argv: list[str]) -> tuple[PlayArgs, TrainConfig, Path | None]:
     if args.eval:
         require(not physics_preset, "--eval plays its own grid of physics around the stage's: drop --config")
         grid_envs(args, cfg, argv)
-    return args, checked(cfg).validate(), checkpoint
+    with flags_named(argv, ENV_ALIASES):
+        return args, checked(cfg).validate(), checkpoint
 
 
 def grid_envs(args: PlayArgs, cfg: TrainConfig, argv: list[str]):

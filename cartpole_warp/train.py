@@ -30,6 +30,7 @@ from .cli import (
     asks_help,
     clean_errors,
     expand_aliases,
+    flags_named,
     parse,
     peek,
     process_age_s,
@@ -183,7 +184,8 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
             f"--viewer-interval-s must be finite and >= 0, got {args.viewer_interval_s}")
     require(args.video_length >= 1, f"--video-length must be >= 1, got {args.video_length}")
     require(args.video_interval >= 1, f"--video-interval must be >= 1, got {args.video_interval}")
-    cfg = checked(args.cfg).validate()
+    with flags_named(argv, ALIASES):
+        cfg = checked(args.cfg).validate()
     run_dir = run_dir or new_run_dir(cfg.log_dir, cfg.experiment, cfg.agent.run_name)
     problem = unwritable(run_dir)
     require(problem is None, f"the run folder {run_dir} cannot be written: {problem}")

@@ -178,7 +178,7 @@ def test_play_eval_writes_a_success_table_and_heatmap(trained, run_main):
     (["--grid.x", "action_delay_steps", "--grid.x-factors", "0", "inf"],
      "error: --grid.x-factors needs finite factors >= 0, got 0 inf"),
     (["--grid.x", "action_delay_steps", "--grid.x-factors", "0", "1e12"],
-     "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
+     "--env.randomization.action-delay-steps: Input should be less than or equal to 1000"),
 ])
 def test_play_eval_refuses_what_it_cannot_honour(trained, run_main, flags, message):
     log_dir, run, _ = trained
@@ -418,23 +418,23 @@ def test_help_says_whose_defaults_it_shows_and_what_sets_them(run_main):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--num-envs", "0"], "error: invalid config: env.num_envs: Input should be greater than or equal to 1 (got 0)"),
-    (["--agent.algorithm.num-mini-batches", "5"], "error: agent.algorithm.num_mini_batches (5) must divide"),
+    (["--num-envs", "0"], "error: invalid config: --num-envs: Input should be greater than or equal to 1 (got 0)"),
+    (["--agent.algorithm.num-mini-batches", "5"], "error: --agent.algorithm.num-mini-batches (5) must divide"),
     (["--config", "nonexistent"],
      "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, multiarm_double_pendulum, "
      "multiarm_pendulum, rig_swingup, robust, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),
-    (["--agent.algorithm.learning-rate", "-1"], "error: invalid config: agent.algorithm.learning_rate: Input should be "
+    (["--agent.algorithm.learning-rate", "-1"], "error: invalid config: --agent.algorithm.learning-rate: Input should be "
                                                 "greater than 0 (got -1.0)"),
     (["--agent.actor.activation", "foo"], "foo"),
     (["--num-envs", "2147483648"], "error: num_envs=2,147,483,648 would need about"),
-    (["--env.task.reset-dist-m", "-1"], "error: invalid config: env.task.reset_dist_m: Input should be greater than 0"),
-    (["--env.task.episode-length-s", "inf"], "task.episode_length_s: Input should be a finite number"),
+    (["--env.task.reset-dist-m", "-1"], "error: invalid config: --env.task.reset-dist-m: Input should be greater than 0"),
+    (["--env.task.episode-length-s", "inf"], "--env.task.episode-length-s: Input should be a finite number"),
     (["--agent.algorithm.gamma", "2"], "agent.algorithm.gamma: Input should be less than or equal to 1"),
     (["--env.randomization.action-delay-steps", "1000000000000"],
-     "env.randomization.action_delay_steps: Input should be less than or equal to 1000"),
+     "--env.randomization.action-delay-steps: Input should be less than or equal to 1000"),
     (["--num-envs", "4000000", "--env.randomization.action-delay-steps", "1000"],
      "error: randomization.action_delay_steps=1000 with num_envs=4,000,000 is an action history of 4,004,000,000"),
     (["--task", "cartpole-moonwalk"], "error: unknown task 'cartpole-moonwalk'; known tasks: cartpole-balance, "
