@@ -220,9 +220,9 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return play(sys.argv[1:] if argv is None else argv)
-    except ViewerUnavailable as err:
+    except ViewerUnavailable as err:  # a usage error, as every other: exit 2
         print(f"error: {err}", file=sys.stderr)
-        return 1
+        return 2
 
 
 def play(argv: list[str]) -> int:

@@ -327,7 +327,7 @@ def test_play_names_a_corrupt_or_mismatched_checkpoint(trained, tmp_path, conten
 def test_play_without_a_display_suggests_headless(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     result = run_script("play.py", "--agent", "zero", "--log-dir", tmp_path, "--num-envs", "2", env=env)
-    assert result.returncode == 1 and "--headless" in result.stderr and "Traceback" not in result.stderr
+    assert result.returncode == 2 and "--headless" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_play_refuses_an_output_folder_it_cannot_write_before_it_builds(run_main):
