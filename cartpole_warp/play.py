@@ -1,4 +1,5 @@
-"""Watch a policy on its task: statistics, a GIF and a USD recording (--headless) or Newton's viewer.
+"""Watch a policy on its task: statistics and a GIF (--headless; a USD recording too with --record-usd) or Newton's
+viewer.
 
     python play.py --headless                    # newest cartpole-balance run's best checkpoint -> <run>/play/
     python play.py --headless --task cartpole-swingup     # newest run of that task
@@ -120,12 +121,15 @@ class PlayArgs(Generic[TaskT]):
     """Preset of the env for --agent zero|random|multisine or a checkpoint outside a run folder; with a run, its env
     settings replace the run's (a policy played on other physics, e.g. a rig's)."""
     headless: bool = False
-    """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra), cartpole.usda
-    and result.json (the same as --viewer none)."""
+    """No window: print statistics, write <output>/cartpole.gif, cartpole.mp4 (with the video extra) and result.json
+    (the same as --viewer none)."""
     viewer: Viewer = "window"
     """window: Newton's OpenGL viewer (a display and the viz extra); viser: a web page served by this process (the
     viser extra); none: --headless."""
     viser: Annotated[ViserArgs, tyro.conf.arg(name="")] = field(default_factory=ViserArgs)
+    record_usd: bool = False
+    """--headless: also write <output>/cartpole.usda, Newton's ViewerUSD recording of the envs (usdview plays it;
+    tens of MB for a 10 s episode of 256 envs)."""
     record_viser: bool = False
     """--headless: also write <output>/cartpole.viser, a replay for viser's static player (the viser extra; Newton's
     viser viewer records only while it serves, so a server runs on a free local port meanwhile)."""
@@ -290,9 +294,9 @@ def view(args: PlayArgs, env, policy: Policy, play_metric: str) -> int:
 
 
 def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpoint: Path | None) -> int:
-    """Each env's first episode, recorded (GIF, USD, MP4 with the video extra; for a policy that sees camera frames,
-    also ``policy_view.gif``: those frames beside the side view; env 0's joint states and actions as
-    ``trajectory.npz``, the input of ``tools.sysid``); the statistics printed and written to result.json."""
+    """Each env's first episode, recorded (GIF, MP4 with the video extra, USD with --record-usd; for a policy that
+    sees camera frames, also ``policy_view.gif``: those frames beside the side view; env 0's joint states and actions
+    as ``trajectory.npz``, the input of ``tools.sysid``); the statistics printed and written to result.json."""
     from .evaluation.rollouts import rollout, whole_episode_steps
     from .evaluation.trajectories import TRAJECTORY_FILE, TrajectoryRecorder
     from .viz.record import VIDEO_EXTRA, Recorder, video_available
@@ -300,7 +304,8 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
     task = cfg.task_spec
     steps = args.steps or whole_episode_steps(env)
     output = output_dir(args, checkpoint)
-    recorder = Recorder.of_env(env, output, video_length=args.video_length, viser=args.record_viser)
+    recorder = Recorder.of_env(env, output, video_length=args.video_length, viser=args.record_viser,
+                               usd=args.record_usd)
     trajectory = TrajectoryRecorder(env)
 
     def on_step(k: int):
@@ -326,7 +331,8 @@ def play_headless(args: PlayArgs, cfg: TrainConfig, env, policy: Policy, checkpo
               "num_envs": env.num_envs, "steps": steps, **dataclasses.asdict(stats), "play_metric": task.play_metric,
               "play_value": metric, "solved": solved}
     result_file = write_text(output / "result.json", json.dumps(record, indent=2) + "\n")
-    print(f"wrote {', '.join(map(str, pictures))} (usdview plays the .usda) and {result_file}")
+    usd = " (usdview plays the .usda)" if args.record_usd else ""
+    print(f"wrote {', '.join(map(str, pictures))}{usd} and {result_file}")
     if not video_available():
         print(f"no MP4: {VIDEO_EXTRA} adds it")
     return 0

@@ -616,3 +616,19 @@ def test_a_long_rollout_says_how_far_it_is(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert seen == [0, 1, 2, 3] and len(lines) == 2, lines
     assert re.fullmatch(r"  1/3 env steps in \d+ s, about \d+ s left", lines[0]), lines
+
+
+def test_play_writes_the_usd_recording_only_when_asked(run_main, tmp_path):
+    """The USD stage (tens of MB a run) is opt-in: --record-usd writes one that usd-core opens, with a time sample per
+    env step."""
+    from pxr import Usd
+
+    flags = ["--agent", "zero", "--headless", "--num-envs", "2", "--steps", "3", "--device", "cpu"]
+    plain = run_main("play", *flags, "--output", tmp_path / "plain")
+    assert plain.returncode == 0, plain.stderr
+    assert (tmp_path / "plain" / "cartpole.gif").is_file() and not list((tmp_path / "plain").glob("*.usda"))
+    asked = run_main("play", *flags, "--record-usd", "--output", tmp_path / "usd")
+    assert asked.returncode == 0, asked.stderr
+    stage = Usd.Stage.Open(str(tmp_path / "usd" / "cartpole.usda"))
+    assert stage.GetEndTimeCode() - stage.GetStartTimeCode() >= 2, "a time sample per env step"
+    assert "(usdview plays the .usda)" in asked.stdout and "usdview" not in plain.stdout

@@ -28,7 +28,7 @@ def check_viewer():
     """Raise ViewerUnavailable unless a display and pyglet (needed by Newton's OpenGL viewer) are present."""
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise ViewerUnavailable("no display found ($DISPLAY is not set), so Newton's viewer cannot open; "
-                                "run with --headless to write a GIF and a USD recording instead")
+                                "run with --headless to write a GIF instead")
     try:
         import imgui_bundle  # noqa: F401
         import pyglet  # noqa: F401
