@@ -632,3 +632,19 @@ def test_play_writes_the_usd_recording_only_when_asked(run_main, tmp_path):
     stage = Usd.Stage.Open(str(tmp_path / "usd" / "cartpole.usda"))
     assert stage.GetEndTimeCode() - stage.GetStartTimeCode() >= 2, "a time sample per env step"
     assert "(usdview plays the .usda)" in asked.stdout and "usdview" not in plain.stdout
+
+
+def test_the_first_iteration_says_why_its_episodes_are_short(run_main, tmp_path):
+    """With the time-out counters started at random (rsl-rl's init_at_random_ep_len, the default), the swing-up's
+    first episodes end within the iteration, far short of its 500-step limit, and the console says why."""
+    flags = ["--task", "cartpole-swingup", "--num-envs", "256", "--max-iterations", "1", "--device", "cpu",
+             "--logger", "none", "--log-dir", tmp_path]
+    staggered = run_main("train", *flags)
+    assert staggered.returncode == 0, staggered.stderr
+    first = next(line for line in staggered.stdout.splitlines() if line.startswith("it 1/1"))
+    length = int(re.search(r"ep len +[0-9.]+ s \( *(\d+)/500\)", first).group(1))
+    assert length <= train_config("cartpole-swingup").agent.num_steps_per_env, first
+    note = "note: each env's time-out counter starts at a random step (agent.init_at_random_ep_len)"
+    assert note in staggered.stdout
+    aligned = run_main("train", *flags, "--agent.no-init-at-random-ep-len")
+    assert aligned.returncode == 0 and note not in aligned.stdout, aligned.stdout

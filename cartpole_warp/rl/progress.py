@@ -90,6 +90,9 @@ class ProgressLine:
             if evaluation.cut_at_step is not None:
                 line += (f" (cut at step {evaluation.cut_at_step}: {evaluation.episodes} episodes had failed, too many"
                          " for the rule)")
+        if it == first and self.cfg.agent.init_at_random_ep_len and self.cfg.env.task.has_time_limit:
+            line += ("\nnote: each env's time-out counter starts at a random step (agent.init_at_random_ep_len), "
+                     "so the first episodes end early, a few at a time")
         if it == first and eta > LONG_RUN_S:
             line += "\n" + self.long_run_note(end - first, eta)
         return line
