@@ -340,9 +340,9 @@ def test_the_same_seed_trains_the_same_run_and_a_resumed_run_continues_every_pol
 
 @pytest.mark.parametrize(("flags", "message"), [
     (["--task", "cartpole-balance-rgb"], "a task that observes camera frames"),
-    (["--agent.sapg.follower-entropy-coefs", "0.1"], "agent.sapg.follower_entropy_coefs: 1 given for 3 followers"),
+    (["--agent.sapg.follower-entropy-coefs", "0.1"], "--agent.sapg.follower-entropy-coefs: 1 given for 3 followers"),
     (["--console", "rsl_rl"], "console rsl_rl"),
-    (["--agent.sapg.num-blocks", "1"], "agent.sapg.num_blocks"),
+    (["--agent.sapg.num-blocks", "1"], "--agent.sapg.num-blocks"),
 ])
 def test_what_the_learner_cannot_train_is_one_clear_error(tmp_path, flags, message):
     result = sapg_run(tmp_path, *flags, iterations=1)

@@ -18,7 +18,7 @@ def test_play_opens_newtons_viewer_under_xvfb(repo, tmp_path):
 
 def test_browser_viewer_without_the_extra_says_how_to_install_it(repo, tmp_path):
     """--viewer viser without viser installed (hidden here): one line naming the install command and a failing exit
-    code (play.py's viewer errors exit 1, train.py's configuration errors 2)."""
+    code (2: a usage error, in both)."""
     program = f"""
 import contextlib, io, sys
 sys.modules["viser"] = None
@@ -37,6 +37,6 @@ for main, args in ((play.main, ["--agent", "zero", "--viewer", "viser"]),
                             timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     said = [line.split(" ", 1) for line in result.stdout.splitlines() if line[:1].isdigit()]
-    assert [int(code) for code, _ in said] == [1, 2], result.stdout
+    assert [int(code) for code, _ in said] == [2, 2], result.stdout
     for _, err in said:
         assert "pip install 'cartpole_warp[viser]'" in err and "Traceback" not in err, err

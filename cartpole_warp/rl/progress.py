@@ -74,6 +74,8 @@ class ProgressLine:
     def __init__(self, cfg: TrainConfig, env: RslRlVecEnv, device: str):
         self.cfg, self.env, self.device = cfg, env, device
         self.solved_rule, self.play_metric = cfg.task_spec.solved, cfg.task_spec.play_metric
+        self.staggered_starts = False
+        """The run started each env's time-out counter at a random step (its first iteration's line says so)."""
 
     def __call__(self, it: int, first: int, end: int, stats: EpisodeSummary, steps_per_s: float,
                  evaluation: EpisodeSummary | None, solved: bool, eta: float, policy_iteration: int | None = None,
@@ -90,7 +92,7 @@ class ProgressLine:
             if evaluation.cut_at_step is not None:
                 line += (f" (cut at step {evaluation.cut_at_step}: {evaluation.episodes} episodes had failed, too many"
                          " for the rule)")
-        if it == first and self.cfg.agent.init_at_random_ep_len and self.cfg.env.task.has_time_limit:
+        if it == first and self.staggered_starts:
             line += ("\nnote: each env's time-out counter starts at a random step (agent.init_at_random_ep_len), "
                      "so the first episodes end early, a few at a time")
         if it == first and eta > LONG_RUN_S:

@@ -100,6 +100,7 @@ class TaskRunner:
         if init_at_random_ep_len:
             self.env.episode_length_buf = torch.randint_like(self.env.episode_length_buf,
                                                              high=int(self.env.max_episode_length))
+        self.report.line.staggered_starts = init_at_random_ep_len and self.train_cfg.env.task.has_time_limit
         self._first_iteration = self.current_learning_iteration
         self._end_iteration = self._first_iteration + num_learning_iterations
         self.learner.begin(self._first_iteration, self._end_iteration)
