@@ -1,2 +1,2 @@
-"""Programs that measure (bench, sweep, timing, nodes, encoder, sysid, multiarm, gradcheck); never imported by the
-library."""
+"""Programs that measure (bench, sweep, timing, nodes, encoder, sysid, multiarm, gradcheck, fingerprint); never
+imported by the library."""
