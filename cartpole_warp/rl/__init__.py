@@ -1,3 +1,13 @@
-"""Training with rsl-rl, for any registered task: the configuration (``config``), the runner (``runner``), the
-sync-free PPO (``ppo``), one run end to end (``training``), several GPUs (``distributed``), run folders (``runs``) and
-the learning curve (``curve``). Nothing here imports a task module: a task comes from the registry by name."""
+"""Training with rsl-rl, for any registered task. Nothing here imports a task module: a task comes from the registry
+by name. The modules, by what they hold:
+
+- the loop and a run's books: ``runner`` (``TaskRunner``: one run's loop over a learner), ``training`` (a solo run end
+  to end: build, Ctrl-C, the run folder's end), ``population_training`` (a population's run), ``evaluations`` (when
+  one is due, where it runs), ``progress`` (the console line and metrics), ``runs`` (run folders, checkpoints,
+  ``summary.json``), ``curve`` (the learning curve), ``video`` (``--video``'s clips);
+- the learners: ``learner`` (the ``Learner`` seam and the lookup by name), ``ppo_learner`` and ``ppo`` (rsl-rl's PPO and
+  the sync-free update), ``population`` and ``population_ppo`` (K members as one batched PPO), ``sapg`` (a leader and
+  its followers), ``apg`` (analytic policy gradients through the simulator, SHAC);
+- networks and rsl-rl's dict: ``policies`` (``train_cfg``, checkpoints, exports), ``image_model`` (the CNN);
+- infrastructure: ``config`` (``TrainConfig``), ``distributed`` (torchrun).
+"""
