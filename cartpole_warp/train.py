@@ -14,10 +14,11 @@ summary.json. Ctrl-C stops after the current iteration and saves. Also installed
 
 from __future__ import annotations
 
+import functools
 import gc
 import math
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Generic, Literal
 
@@ -40,7 +41,16 @@ from .cli import (
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
 from .engine.scene import StageError
-from .rl.config import TrainConfig, checked, device_settings, learner_settings, on_gpu, train_config
+from .rl.config import (
+    TrainConfig,
+    checked,
+    chosen_settings,
+    device_defaults,
+    device_settings,
+    learner_settings,
+    on_gpu,
+    train_config,
+)
 from .rl.distributed import Ranks
 from .rl.learner import LEARNERS
 from .rl.runs import BEST_CHECKPOINT, RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
@@ -117,31 +127,25 @@ def task_list() -> str:
     return "tasks (--task):\n" + "\n".join(f"    {name:<{width}}  {tasks.get(name).summary}" for name in tasks.names())
 
 
-def flat_fields(cfg: TrainConfig) -> dict[str, str]:
-    """``cfg``'s fields by dotted name (``agent.max_iterations``), each value as its repr."""
-    def walk(prefix: str, data: dict):
-        for key, value in data.items():
-            yield from walk(f"{prefix}{key}.", value) if isinstance(value, dict) else [(f"{prefix}{key}", repr(value))]
-
-    return dict(walk("", asdict(cfg)))
-
-
 def default_notes(cfg: TrainConfig) -> dict[str, str]:
     """For --help, by short flag: that ``cfg.task`` and ``cfg.env.device`` are whose defaults it shows, which short
     flags' defaults another task or learner sets (compared over every registered task and every learner), and which
-    fields the other device changes for this task."""
-    shown = {short: flag.removeprefix("--").replace("-", "_") for short, flag in ALIASES.items()
+    settings the task chooses by device (``device_defaults``)."""
+    def value(c: TrainConfig, flag: str) -> str:
+        return repr(functools.reduce(getattr, flag.removeprefix("--").replace("-", "_").split("."), c))
+
+    shown = {short: flag for short, flag in ALIASES.items()
              if short not in ("--device", "--learner") and flag.startswith(("--env.", "--agent."))}
-    by_task = [flat_fields(train_config(name, None, cfg.env.device)) for name in tasks.names()]
-    by_learner = [flat_fields(train_config(cfg.task, None, cfg.env.device, learner)) for learner in LEARNERS]
+    by_task = [train_config(name, None, cfg.env.device) for name in tasks.names()]
+    by_learner = [train_config(cfg.task, None, cfg.env.device, learner) for learner in LEARNERS]
     other_device = "cuda" if cfg.env.device == "cpu" else "cpu"
-    here, there = flat_fields(cfg), flat_fields(train_config(cfg.task, None, other_device, cfg.agent.learner))
-    device_fields = [name for name in here if name != "env.device" and here[name] != there[name]]
+    by_device = sorted(device_settings(cfg).keys() | chosen_settings(cfg, device_defaults(cfg.task_spec,
+                                                                                          other_device)).keys())
     notes = {"--task": "the defaults shown are its own",
-             "--device": f"{other_device} changes {', '.join(device_fields)}" if device_fields else ""}
-    for short, name in shown.items():
+             "--device": f"{other_device} changes {', '.join(by_device)}" if by_device else ""}
+    for short, flag in shown.items():
         setters = [by for by, configs in (("--task", by_task), ("--learner", by_learner))
-                   if len({c[name] for c in configs}) > 1]
+                   if len({value(c, flag) for c in configs}) > 1]
         notes[short] = f"set by {' and '.join(setters)}" if setters else ""
     return {short: note for short, note in notes.items() if note}
 

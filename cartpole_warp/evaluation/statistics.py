@@ -119,8 +119,7 @@ class SolvedRule:
         per_step = summary.full_reward_per_step if self.full_episodes_only else summary.mean_reward_per_step
         if per_step is None or summary.time_limit_fraction is None:
             return False
-        return ((self.min_reward_per_step is None or per_step >= self.min_reward_per_step)
-                and summary.time_limit_fraction >= self.min_time_limit_fraction)
+        return all(met for *_, met in self.conditions(vars(summary)))
 
     def conditions(self, metrics: dict) -> list[tuple[str, float | None, float, bool]]:
         """Each of the rule's conditions over ``metrics`` (``EpisodeSummary``'s means by name, e.g. an evaluation's in
