@@ -47,8 +47,12 @@ MOVED_MODULES = {
     f"{__name__}.statistics": f"{__name__}.evaluation.statistics",
     f"{__name__}.robustness": f"{__name__}.evaluation.robustness",
     f"{__name__}.tasks.cartpole": f"{__name__}.tasks.cart_base",
+    f"{__name__}.rl.learner": f"{__name__}.rl.learners",
+    **{f"{__name__}.rl.{old}": f"{__name__}.rl.learners.{new}" for old, new in (
+        ("ppo_learner", "ppo.learner"), ("ppo", "ppo.sync_free"), ("population_ppo", "batched_ppo.update"),
+        ("sapg", "sapg.learner"), ("apg", "shac.learner"))},
 }
-"""The modules' old paths (before the layers became folders, and the cart tasks' shared module, which is no task)
--> their new ones, until ``settings.deprecation.REMOVED_IN``; the old ``cartpole_warp.evaluation`` module's names are
-answered by the ``evaluation`` package."""
+"""The modules' old paths (before the layers became folders, the cart tasks' shared module, which is no task, and
+the learners before their wing) -> their new ones, until ``settings.deprecation.REMOVED_IN``; the old
+``cartpole_warp.evaluation`` module's names are answered by the ``evaluation`` package."""
 alias_moved_modules(MOVED_MODULES)

@@ -52,7 +52,7 @@ from .rl.config import (
     train_config,
 )
 from .rl.distributed import Ranks
-from .rl.learner import LEARNERS
+from .rl.learners import LEARNERS
 from .rl.runs import BEST_CHECKPOINT, RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable

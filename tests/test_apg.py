@@ -1,4 +1,4 @@
-"""Training by analytic policy gradients through the simulator (``train.py --learner apg``, ``rl.apg``): the critic's
+"""Training by analytic policy gradients through the simulator (``--learner apg``, ``rl.learners.shac``): the critic's
 TD(lambda) targets against their definition, the learner's settings and refusals, a run on every state task, a
 resumed run, and the balance trained to solved and played by ``play.py --headless``."""
 
@@ -10,8 +10,8 @@ from conftest import call_main
 from test_train_cli import only_run, train_to_solved_and_play
 
 from cartpole_warp import tasks
-from cartpole_warp.rl.apg import window_targets
 from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.learners.shac.learner import window_targets
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
 

@@ -18,6 +18,9 @@ OLD_PATHS = {  # the root modules of 56e07f5 -> their folders
     "agent": "settings.agent", "presets": "settings.presets", "files": "settings.files",
     "deprecation": "settings.deprecation", "statistics": "evaluation.statistics", "robustness": "evaluation.robustness",
     "tasks.cartpole": "tasks.cart_base",  # the cart tasks' shared parts, named like a task before
+    "rl.learner": "rl.learners", "rl.ppo_learner": "rl.learners.ppo.learner", "rl.ppo": "rl.learners.ppo.sync_free",
+    "rl.population_ppo": "rl.learners.batched_ppo.update", "rl.sapg": "rl.learners.sapg.learner",
+    "rl.apg": "rl.learners.shac.learner",  # the learners before their wing
 }
 
 
@@ -57,6 +60,15 @@ def test_the_policy_functions_that_left_the_runner_answer_from_rl_policies(monke
     monkeypatch.delitem(vars(runner), name, raising=False)  # a name an earlier lookup cached
     with pytest.warns(DeprecationWarning, match=f"rl.runner.{name} is now cartpole_warp.rl.policies.{name}"):
         assert getattr(runner, name) is getattr(policies, name)
+
+
+@pytest.mark.parametrize("name", ["PopulationLearner", "MemberLearner", "Member"])
+def test_the_batched_learners_parts_that_left_rl_population_answer_from_its_folder(monkeypatch, name):
+    population = importlib.import_module("cartpole_warp.rl.population")
+    learner = importlib.import_module("cartpole_warp.rl.learners.batched_ppo.learner")
+    monkeypatch.delitem(vars(population), name, raising=False)
+    with pytest.warns(DeprecationWarning, match=f"rl.population.{name} is now cartpole_warp.rl.learners.batched_ppo"):
+        assert getattr(population, name) is getattr(learner, name)
 
 
 def test_the_gymnasium_envs_old_core_attribute_is_their_env():

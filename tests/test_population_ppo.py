@@ -14,7 +14,7 @@ from rsl_rl.models import MLPModel
 from rsl_rl.storage import RolloutStorage
 from tensordict import TensorDict
 
-from cartpole_warp.rl.population_ppo import BatchedActorCritic, PopulationPPO
+from cartpole_warp.rl.learners.batched_ppo.update import BatchedActorCritic, PopulationPPO
 from cartpole_warp.wrappers.rsl_rl import mirror
 
 NUM_OBS, NUM_ACTIONS, NUM_ENVS, NUM_STEPS = 4, 1, 16, 8

@@ -101,7 +101,7 @@ def test_sync_free_ppo_loads_a_ppo_checkpoint_and_keeps_its_rate_tensor(tmp_path
 def test_sync_free_gaussian_samples_the_same_distribution():
     from rsl_rl.modules.distribution import GaussianDistribution
 
-    from cartpole_warp.rl.ppo import SyncFreeGaussian
+    from cartpole_warp.rl.policies import SyncFreeGaussian
 
     torch.manual_seed(0)
     ours, theirs = SyncFreeGaussian(1, init_std=0.7), GaussianDistribution(1, init_std=0.7)
@@ -116,7 +116,7 @@ def test_sync_free_gaussian_samples_the_same_distribution():
 
 
 def test_sync_free_ppo_samples_with_the_sync_free_gaussian():
-    from cartpole_warp.rl.ppo import SyncFreeGaussian
+    from cartpole_warp.rl.policies import SyncFreeGaussian
 
     assert isinstance(runner_for("SyncFreePPO").alg.actor.distribution, SyncFreeGaussian)
 

@@ -178,11 +178,15 @@ def test_the_retired_gpu_preset_says_where_its_settings_went():
 
 def test_runner_config_is_rsl_rl_train_cfg():
     cfg = to_rsl_rl(RunnerConfig())
-    assert cfg["algorithm"]["class_name"] == "cartpole_warp.rl.ppo:SyncFreePPO"
+    from cartpole_warp.rl.learners.ppo.sync_free import SyncFreePPO
+    from cartpole_warp.rl.policies import SyncFreeGaussian
+
+    assert resolve_callable(cfg["algorithm"]["class_name"]) is SyncFreePPO
     assert cfg["algorithm"]["entropy_coef"] == 0.005
     assert cfg["actor"]["class_name"] == cfg["critic"]["class_name"] == "MLPModel"
-    assert cfg["actor"]["hidden_dims"] == [32, 32] and cfg["actor"]["distribution_cfg"] == {
-        "class_name": "cartpole_warp.rl.ppo:SyncFreeGaussian", "init_std": 1.0}
+    distribution = cfg["actor"]["distribution_cfg"]
+    assert cfg["actor"]["hidden_dims"] == [32, 32] and distribution["init_std"] == 1.0 and len(distribution) == 2
+    assert resolve_callable(distribution["class_name"]) is SyncFreeGaussian
     assert cfg["num_steps_per_env"] == 8 and cfg["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
     assert "max_iterations" not in cfg and cfg["logger"] == "tensorboard"
     assert to_rsl_rl(RunnerConfig(logger="none"))["logger"]["class_name"].endswith(":NullLogWriter")

@@ -17,8 +17,8 @@ import cartpole_warp
 from cartpole_warp.rl import image_model
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.image_model import ImageModel, stack_blocks, to_blocks
+from cartpole_warp.rl.learners.ppo.sync_free import SyncFreePPO
 from cartpole_warp.rl.policies import to_rsl_rl
-from cartpole_warp.rl.ppo import SyncFreePPO
 from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 

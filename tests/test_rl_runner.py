@@ -124,7 +124,7 @@ def test_the_runner_is_one_loop_over_learners_found_by_name():
     from pathlib import Path
 
     from cartpole_warp.rl import runner
-    from cartpole_warp.rl.learner import LEARNERS, learner_class
+    from cartpole_warp.rl.learners import LEARNERS, learner_class
 
     assert len(Path(runner.__file__).read_text().splitlines()) <= 200
     package = Path(runner.__file__).parent.parent

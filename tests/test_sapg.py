@@ -1,4 +1,4 @@
-"""The leader and followers (``train.py --learner sapg``, ``rl.sapg``): the leader's update against its definition (with
+"""The leader and followers (``--learner sapg``, ``rl.learners.sapg``): the leader's update against its definition (with
 no weight on the followers it is PPO's, a follower that acts as the leader gives importance weights of 1, and its loss
 on a follower's samples is computed here from rsl-rl's own networks), the learner's settings and refusals, a run on
 every state task, the same run from the same seed, a resumed run, and the balance trained to solved and played by
@@ -18,8 +18,8 @@ from test_train_cli import only_run, train_to_solved_and_play
 
 from cartpole_warp import tasks
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.population_ppo import BatchedActorCritic, PopulationPPO, gaussian_log_prob
-from cartpole_warp.rl.sapg import LeaderFollowerPPO
+from cartpole_warp.rl.learners.batched_ppo.update import BatchedActorCritic, PopulationPPO, gaussian_log_prob
+from cartpole_warp.rl.learners.sapg.learner import LeaderFollowerPPO
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
 SETTINGS = {"gamma": 0.95, "clip_param": 0.2, "value_loss_coef": 0.5, "entropy_coef": 0.01}

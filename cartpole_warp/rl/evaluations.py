@@ -20,7 +20,7 @@ from ..evaluation.in_step import InStepEvaluation
 from ..evaluation.rollouts import FirstEpisodesRun, evaluate
 from ..evaluation.statistics import EpisodeSummary
 from .config import TrainConfig
-from .learner import Learner
+from .learners import Learner
 from .policies import deterministic
 from .runs import BEST_CHECKPOINT, Progress
 

@@ -15,6 +15,7 @@ import warnings
 from pathlib import Path
 
 import torch
+from rsl_rl.modules.distribution import GaussianDistribution
 from rsl_rl.utils import resolve_class, resolve_obs_groups
 from rsl_rl.utils.log_writer import LogWriter
 from tensordict import TensorDict
@@ -25,11 +26,25 @@ from ..settings.files import atomic_write
 from ..wrappers.rsl_rl import RslRlVecEnv
 from ..wrappers.rsl_rl import mirror as mirror_batch
 from .image_model import ImageModel
-from .ppo import SyncFreeGaussian, SyncFreePPO
 from .runs import RunError
 
 ONNX_FILE, JIT_FILE = "policy.onnx", "policy.pt"
 """The exports' file names (in a run's ``exported/``)."""
+
+SYNC_FREE_PPO = "cartpole_warp.rl.learners.ppo.sync_free:SyncFreePPO"
+"""rsl-rl's ``class_name`` of the PPO learner's ``SyncFreePPO`` (``agent.algorithm.class_name: SyncFreePPO``), named
+by path: the networks' layer does not import the learners'."""
+
+
+class SyncFreeGaussian(GaussianDistribution):
+    """rsl-rl's ``GaussianDistribution`` sampled as mean + std * N(0, 1). ``torch.normal(mean, std)``, which rsl-rl's
+    ``sample`` calls, first reads ``std.min() >= 0`` back to the host: a device sync at every policy step, and an error
+    inside a CUDA-graph capture. Same distribution (std is clamped positive), other random numbers."""
+
+    def sample(self) -> torch.Tensor:
+        with torch.no_grad():
+            mean, std = self.mean, self.std
+            return mean + std * torch.randn_like(mean)
 
 
 class NullLogWriter(LogWriter):
@@ -118,7 +133,7 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -
     cfg["actor"]["class_name"] = "MLPModel"
     cfg["actor"]["distribution_cfg"]["class_name"] = "GaussianDistribution"
     if agent.algorithm.class_name == "SyncFreePPO":
-        cfg["algorithm"]["class_name"] = _path(SyncFreePPO)
+        cfg["algorithm"]["class_name"] = SYNC_FREE_PPO
         cfg["algorithm"]["cuda_graph"] = agent.cuda_graph
         cfg["actor"]["distribution_cfg"]["class_name"] = _path(SyncFreeGaussian)
     cfg["critic"]["class_name"] = "MLPModel"

@@ -23,8 +23,9 @@ from ..settings.files import write_text
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks, from_every_rank, from_rank_zero, join_population_group
+from .learners.batched_ppo.learner import Member, MemberLearner, PopulationLearner
 from .policies import to_rsl_rl
-from .population import Member, MemberLearner, PopulationEvaluation, PopulationLearner, check_population
+from .population import PopulationEvaluation, check_population
 from .progress import format_duration
 from .runner import TaskRunner
 from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary, save_config

@@ -1,4 +1,4 @@
-"""``TaskRunner``: the training loop of one run over a learner (``rl.learner``), for any task.
+"""``TaskRunner``: the training loop of one run over a learner (``rl.learners``), for any task.
 
     runner = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(cfg.env)), cfg, log_dir)
     runner.learn(cfg.agent.max_iterations)     # runner.request_stop() ends it after the current iteration
@@ -30,7 +30,7 @@ from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import Ranks, join_process_group, joint_stop
 from .evaluations import Evaluations
-from .learner import Learner, learner_class
+from .learners import Learner, learner_class
 from .policies import deterministic, export_policy, networks_must_fit, read_checkpoint, to_rsl_rl
 from .progress import Pace, Report, history_entry, run_eta_s
 from .runs import Progress

@@ -23,7 +23,7 @@ from ..settings.config import ConfigError
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks
-from .learner import learner_class
+from .learners import learner_class
 from .runner import TaskRunner
 from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
 

@@ -16,11 +16,11 @@ Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid",
 """rsl-rl's activation names (``rsl_rl.utils.resolve_nn_activation``)."""
 Schedule = Literal["adaptive", "fixed"]
 Algorithm = Literal["PPO", "SyncFreePPO"]
-"""rsl-rl's ``PPO``, or ``SyncFreePPO`` (``cartpole_warp.rl.ppo``: the same update without host syncs)."""
+"""rsl-rl's ``PPO``, or ``SyncFreePPO`` (``rl.learners.ppo``: the same update without host syncs)."""
 MetricsLogger = Literal["tensorboard", "wandb", "none"]
 Learner = Literal["ppo", "apg", "sapg"]
-"""'ppo' (rsl-rl's PPO on the env's transitions), 'apg' (``rl.apg``: analytic policy gradients through the
-simulator) or 'sapg' (``rl.sapg``: a leader PPO policy learning from its followers' envs too)."""
+"""'ppo' (rsl-rl's PPO on the env's transitions), 'apg' (``rl.learners.shac``: analytic policy gradients through the
+simulator) or 'sapg' (``rl.learners.sapg``: a leader PPO policy learning from its followers' envs too)."""
 
 
 @dataclass
@@ -123,7 +123,7 @@ class PpoConfig:
 
 @dataclass
 class ApgConfig:
-    """Short-horizon analytic policy gradients (``rl.apg``, after SHAC: Xu et al., ICLR 2022): each iteration
+    """Short-horizon analytic policy gradients (``rl.learners.shac``, after SHAC: Xu et al., ICLR 2022): each iteration
     backpropagates the return of a window of ``num_steps_per_env`` env steps of every env, plus the critic's value of
     where each window ends, through the simulator into the actor; the critic learns TD(lambda) targets of the same
     windows. The defaults were chosen by experiment on the balance (docs/benchmarks.md)."""
@@ -157,11 +157,11 @@ class ApgConfig:
 
 @dataclass
 class SapgConfig:
-    """Split and aggregate policy gradients (``rl.sapg``, after SAPG: Singla, Agarwal and Pathak, ICML 2024): the run's
-    envs are ``num_blocks`` blocks of ``env.num_envs`` envs, each block a policy's: block 0 the leader's, the others
-    followers'. Every policy learns rsl-rl's PPO (``algorithm``'s settings) on its own block; the leader also learns
-    from one follower's block per iteration, drawn at random, through an importance-weighted clipped surrogate loss
-    and a value loss, with one-step targets of its own critic. The leader is the run's policy: evaluated, saved and
+    """Split and aggregate policy gradients (``rl.learners.sapg``, after SAPG: Singla, Agarwal and Pathak, ICML 2024):
+    the run's envs are ``num_blocks`` blocks of ``env.num_envs`` envs, each block a policy's: block 0 the leader's, the
+    others followers'. Every policy learns rsl-rl's PPO (``algorithm``'s settings) on its own block; the leader also
+    learns from one follower's block per iteration, drawn at random, through an importance-weighted clipped surrogate
+    loss and a value loss, with one-step targets of its own critic. The leader is the run's policy: evaluated, saved and
     exported."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS

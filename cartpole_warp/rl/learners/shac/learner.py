@@ -22,14 +22,14 @@ import dataclasses
 import torch
 from tensordict import TensorDict
 
-from ..engine.streams import PhaseClock
-from ..evaluation.statistics import EpisodeStats
-from ..gradients.rollout import DifferentiableRollout, Trajectory
-from ..settings.config import ConfigError, EnvConfig, refuse_present
-from ..wrappers.rsl_rl import RslRlVecEnv
-from .config import TrainConfig
-from .distributed import Ranks
-from .policies import build_networks
+from ....engine.streams import PhaseClock
+from ....evaluation.statistics import EpisodeStats
+from ....gradients.rollout import DifferentiableRollout, Trajectory
+from ....settings.config import ConfigError, EnvConfig, refuse_present
+from ....wrappers.rsl_rl import RslRlVecEnv
+from ...config import TrainConfig
+from ...distributed import Ranks
+from ...policies import build_networks
 
 
 def window_targets(rewards: torch.Tensor, next_values: torch.Tensor, terminated: torch.Tensor, ended: torch.Tensor,
@@ -67,7 +67,7 @@ def check_apg(cfg: TrainConfig):
 
 
 class ApgLearner:
-    """SHAC's iterations (module docstring) on ``env`` (``rl.learner.Learner``)."""
+    """SHAC's iterations (module docstring) on ``env`` (``rl.learners.Learner``)."""
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:

@@ -1,6 +1,7 @@
-"""The seam between the training loop and what learns: a ``Learner`` runs one iteration (act, step, learn) on the
-env, holds the state a checkpoint keeps, and names the policy an evaluation judges; ``learner_class`` finds one by
-its name (``agent.learner``: ``train.py --learner NAME``).
+"""The learners, a folder each (``ppo``, ``batched_ppo``, ``sapg``, ``shac``), and the seam between the training loop
+and what learns: a ``Learner`` runs one iteration (act, step, learn) on the env, holds the state a checkpoint keeps,
+and names the policy an evaluation judges; ``learner_class`` finds one by its name (``agent.learner``: ``train.py
+--learner NAME``). A learner imports no other's folder unless built on it (``sapg`` on ``batched_ppo``).
 
     learner = learner_class(cfg.agent.learner)(env, cfg, rsl_rl_cfg, EpisodeStats(env.device, max_episode_length))
     obs, losses = learner.iteration(obs, it)
@@ -17,15 +18,15 @@ if TYPE_CHECKING:
     import torch
     from tensordict import TensorDict
 
-    from ..engine.streams import PhaseClock
-    from ..evaluation.statistics import EpisodeStats
-    from ..settings.config import EnvConfig
-    from ..wrappers.rsl_rl import RslRlVecEnv
-    from .config import TrainConfig
-    from .distributed import Ranks
+    from ...engine.streams import PhaseClock
+    from ...evaluation.statistics import EpisodeStats
+    from ...settings.config import EnvConfig
+    from ...wrappers.rsl_rl import RslRlVecEnv
+    from ..config import TrainConfig
+    from ..distributed import Ranks
 
-LEARNERS = {"ppo": "cartpole_warp.rl.ppo_learner:PpoLearner", "apg": "cartpole_warp.rl.apg:ApgLearner",
-            "sapg": "cartpole_warp.rl.sapg:SapgLearner"}
+LEARNERS = {"ppo": f"{__name__}.ppo.learner:PpoLearner", "apg": f"{__name__}.shac.learner:ApgLearner",
+            "sapg": f"{__name__}.sapg.learner:SapgLearner"}
 """Each learner's class by name, imported when asked for (the backpropagation learner imports the differentiable
 rollout, which a PPO run need not load)."""
 
@@ -37,7 +38,7 @@ class Learner(Protocol):
 
     env: RslRlVecEnv
     """The envs whose episodes ``episodes`` holds (the console line counts them): the training's env, or its
-    leader's block (``rl.population.MemberEnv``)."""
+    leader's block (``batched_ppo.learner.MemberEnv``)."""
     episodes: EpisodeStats
     actor: torch.nn.Module
     """The policy an evaluation judges and the exports hold (rsl-rl's ``MLPModel``: its mean when in eval mode)."""

@@ -8,7 +8,7 @@ runner judges, saves and exports it (``SapgLearner``), so the run's folder plays
 
 from __future__ import annotations
 
-from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+from ....wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
 
 # isort: split
 import dataclasses
@@ -17,13 +17,13 @@ import functools
 import torch
 from tensordict import TensorDict
 
-from ..evaluation.statistics import EpisodeStats
-from ..settings.config import ConfigError, EnvConfig, refuse_present
-from ..wrappers.rsl_rl import RslRlVecEnv
-from .config import TrainConfig
-from .distributed import Ranks
-from .population import Member, MemberLearner, PopulationLearner, batched_ppo_problems
-from .population_ppo import BatchedActorCritic, PopulationPPO
+from ....evaluation.statistics import EpisodeStats
+from ....settings.config import ConfigError, EnvConfig, refuse_present
+from ....wrappers.rsl_rl import RslRlVecEnv
+from ...config import TrainConfig
+from ...distributed import Ranks
+from ..batched_ppo.learner import Member, MemberLearner, PopulationLearner, batched_ppo_problems
+from ..batched_ppo.update import BatchedActorCritic, PopulationPPO
 
 OPTIMIZER_STATE = ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate")
 """``PopulationPPO``'s per-member optimiser state besides the model: Adam's moments and steps, the learning rate."""
@@ -99,7 +99,7 @@ class LeaderFollowerPPO(PopulationPPO):
 
 
 class SapgLearner:
-    """The leader of a ``LeaderFollowerPPO`` population as the runner's learner (``rl.learner.Learner``): the
+    """The leader of a ``LeaderFollowerPPO`` population as the runner's learner (``rl.learners.Learner``): the
     runner's episodes, losses, learning rate and action noise are the leader's block's, its evaluations judge the
     leader, and a checkpoint holds the leader in rsl-rl's format (``play.py`` and the exports read it as a PPO run's)
     with every policy's state besides (``sapg_state_dict``, which ``--resume`` restores). A follower whose networks

@@ -8,7 +8,7 @@ are one flat (K, P) parameter tensor whose layers run as batched products (``Bat
 mini-batch step are a fixed number of kernel launches whatever K is, with no host sync (``update`` can be captured as
 a CUDA graph).
 
-Every member follows rsl-rl's ``PPO`` as ``SyncFreePPO`` (``rl.ppo``) runs it: GAE with time-out bootstrapping,
+Every member follows rsl-rl's ``PPO`` as ``SyncFreePPO`` (``learners.ppo``) runs it: GAE with time-out bootstrapping,
 advantages normalised over the rollout, the same mini-batches for every epoch, clipped surrogate and value losses,
 actor and critic gradient norms clipped separately, Adam, normalisers updated after the gradient steps, symmetry as
 data augmentation. ``tests/test_population_ppo.py`` checks each member against rsl-rl's own ``PPO``.
@@ -16,7 +16,7 @@ data augmentation. ``tests/test_population_ppo.py`` checks each member against r
 
 from __future__ import annotations
 
-from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+from ....wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
 
 # isort: split
 import math

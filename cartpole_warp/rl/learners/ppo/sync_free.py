@@ -1,5 +1,5 @@
-"""``SyncFreePPO``: rsl-rl's PPO with an update that never waits for the device; ``SyncFreeGaussian``: rsl-rl's
-Gaussian action distribution, sampled without waiting for the device.
+"""``SyncFreePPO``: rsl-rl's PPO with an update that never waits for the device (its actor samples with
+``policies.SyncFreeGaussian``, which does not wait either).
 
 rsl-rl's ``PPO.update`` reads four values back per mini-batch (the KL for its adaptive learning rate, then the value,
 surrogate and entropy losses); on a GPU each read drains the queue, so the CPU cannot run ahead and a mini-batch of a
@@ -13,7 +13,7 @@ the gradient steps of an update can also be captured as one CUDA graph (``cuda_g
 
 from __future__ import annotations
 
-from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+from ....wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
 
 # isort: split
 from itertools import chain
@@ -21,22 +21,10 @@ from types import SimpleNamespace
 
 import torch
 from rsl_rl.algorithms import PPO
-from rsl_rl.modules.distribution import GaussianDistribution
 from rsl_rl.utils.utils import reduce_gradients_in_buckets
 from torch import nn
 
-from ..engine.streams import TorchGraph
-
-
-class SyncFreeGaussian(GaussianDistribution):
-    """rsl-rl's ``GaussianDistribution`` sampled as mean + std * N(0, 1). ``torch.normal(mean, std)``, which rsl-rl's
-    ``sample`` calls, first reads ``std.min() >= 0`` back to the host: a device sync at every policy step, and an error
-    inside a CUDA-graph capture. Same distribution (std is clamped positive), other random numbers."""
-
-    def sample(self) -> torch.Tensor:
-        with torch.no_grad():
-            mean, std = self.mean, self.std
-            return mean + std * torch.randn_like(mean)
+from ....engine.streams import TorchGraph
 
 
 class SyncFreePPO(PPO):

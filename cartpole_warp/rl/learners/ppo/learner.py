@@ -5,7 +5,7 @@ storage), is captured with the env's Warp kernels the second time and replayed a
 
 from __future__ import annotations
 
-from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+from ....wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
 
 # isort: split
 import contextlib
@@ -16,18 +16,18 @@ import torch
 from rsl_rl.utils import resolve_callable
 from tensordict import TensorDict
 
-from ..engine.streams import PhaseClock, TorchGraph
-from ..evaluation.statistics import EpisodeStats
-from ..settings.config import EnvConfig
-from ..wrappers.rsl_rl import RslRlVecEnv
-from ..wrappers.tensordict_import import mark_for_compile
-from .config import TrainConfig
-from .distributed import Ranks
-from .ppo import SyncFreePPO
+from ....engine.streams import PhaseClock, TorchGraph
+from ....evaluation.statistics import EpisodeStats
+from ....settings.config import EnvConfig
+from ....wrappers.rsl_rl import RslRlVecEnv
+from ....wrappers.tensordict_import import mark_for_compile
+from ...config import TrainConfig
+from ...distributed import Ranks
+from .sync_free import SyncFreePPO
 
 
 class PpoLearner:
-    """rsl-rl's PPO on ``env`` (``rl.learner.Learner``); ``alg`` is rsl-rl's algorithm object."""
+    """rsl-rl's PPO on ``env`` (``rl.learners.Learner``); ``alg`` is rsl-rl's algorithm object."""
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:

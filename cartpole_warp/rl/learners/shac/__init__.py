@@ -1,0 +1,2 @@
+"""``--learner apg``: short-horizon analytic policy gradients through the simulator with a critic (SHAC:
+``learner.ApgLearner``)."""
