@@ -1,6 +1,7 @@
 """The CUDA-graph paths of training (rollout and SyncFreePPO update captured once, replayed after) give what the same
 work launched op by op gives. They exist on a GPU only: ``CARTPOLE_TEST_DEVICE=cuda:0 pytest tests/test_cuda_graph.py``
-runs them there; on the CPU the same code runs op by op and the rest of the suite covers it."""
+runs them there; on the CPU the same code runs op by op and the rest of the suite covers it (and the collector's pause
+around a capture is checked here on any device)."""
 
 import pytest
 import torch
@@ -88,3 +89,63 @@ def test_a_host_policy_runs_launched_and_a_device_one_captured(cuda):
     assert run._graph is None
     run(5)
     assert len(drawn) == 5 and len(set(drawn)) == 5
+
+
+def test_the_collector_is_paused_inside_a_capture_and_as_it_was_after():
+    """``collection_paused`` (around every capture, which exists on a GPU only): off inside, on again after, also
+    after an error, and left off where the caller had paused it."""
+    import gc
+
+    from cartpole_warp.engine.streams import collection_paused
+
+    assert gc.isenabled()
+    with collection_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError, match="inside"), collection_paused():
+        raise RuntimeError("inside")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with collection_paused():
+            pass
+        assert not gc.isenabled(), "a collector the caller paused stays paused"
+    finally:
+        gc.enable()
+
+
+DEAD_GRAPH_THEN_CAPTURE = """
+import gc, sys, torch
+from cartpole_warp.engine.streams import TorchGraph
+x, ended_runs = torch.zeros(4, device=sys.argv[1]), []
+def ended_run():
+    graph = TorchGraph(sys.argv[1])
+    graph(lambda: x.add_(1)); graph(lambda: x.add_(1))  # run, then captured
+    cycle = [graph]
+    cycle.append(cycle)  # only the cyclic collector frees it
+    ended_runs.append(cycle)
+ended_run()
+gc.set_threshold(1, 1, 1)  # every allocation collects every generation
+def work():
+    ended_runs.clear()  # the ended run's graph is garbage from here, inside the capture
+    junk = [[] for _ in range(1000)]  # allocations, which run the collector unless it is paused
+    return x.mul_(2)
+graph = TorchGraph(sys.argv[1])
+graph(lambda: x.mul_(2))
+graph(work)
+torch.cuda.synchronize()
+print("captured", x.tolist())
+"""
+
+
+def test_a_capture_survives_an_ended_runs_graph_left_to_the_collector(cuda, tmp_path):
+    """A second training in one process (``tools.sweep``'s seeds) captured while the collector freed the first run's
+    graph from a reference cycle: torch's ``CUDAGraph.reset`` inside the capture broke it and the process died
+    (SIGSEGV, H200, 2026-12-01). Every capture pauses the collector (``streams.collection_paused``)."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "dead_graph.py"
+    script.write_text(DEAD_GRAPH_THEN_CAPTURE)
+    result = subprocess.run([sys.executable, str(script), cuda], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0 and "captured [8.0, 8.0, 8.0, 8.0]" in result.stdout, result.stdout + result.stderr

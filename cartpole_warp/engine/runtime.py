@@ -199,7 +199,7 @@ class ShardedStep:
         if capture:
             graphs = []
             for shard in shards:
-                with order, wp.ScopedCapture(device=shard.scene.model.device) as captured:
+                with order, streams.collection_paused(), wp.ScopedCapture(device=shard.scene.model.device) as captured:
                     step_fn(shard)
                 graphs.append(captured.graph)
             self.replay = GraphReplay(graphs)

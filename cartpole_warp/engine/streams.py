@@ -5,6 +5,7 @@ when an env is built.
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -66,6 +67,21 @@ class StreamOrder:
         return self.device != "cpu" and torch.cuda.is_current_stream_capturing()
 
 
+@contextmanager
+def collection_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off inside (as it was after): a CUDA graph it frees during a capture (an ended
+    run's, held by a reference cycle: a second training in one process) breaks the capture and ends the process
+    (``CUDAGraph.reset`` is not permitted while a stream captures). torch no longer collects before a capture
+    (``torch.compiler.config.force_cudagraph_gc``), and Warp never did; every capture here runs inside this."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 class TorchGraph:
     """``graphed(work)``: ``work()`` (torch work, and Warp kernels launched in it) run op by op on a side stream the
     first time (which makes cuBLAS handles and lazily allocated state there), captured as one CUDA graph on that
@@ -105,7 +121,8 @@ class TorchGraph:
 
     @contextmanager
     def _capture(self, graph: torch.cuda.CUDAGraph) -> Iterator[None]:
-        with wp.ScopedStream(wp.stream_from_torch(self.stream)), torch.cuda.graph(graph, stream=self.stream):
+        with (collection_paused(), wp.ScopedStream(wp.stream_from_torch(self.stream)),
+              torch.cuda.graph(graph, stream=self.stream)):
             wp.capture_begin(force_module_load=False, external=True)
             try:
                 yield

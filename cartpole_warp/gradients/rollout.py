@@ -50,7 +50,7 @@ from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_
 from ..engine.runtime import load_modules
 from ..engine.scene import build_scene, make_solver
 from ..engine.step_rules import all_within, clip_actions, role_state, set_role_state, with_time_limit
-from ..engine.streams import StreamOrder
+from ..engine.streams import StreamOrder, collection_paused
 
 
 @dataclass
@@ -203,7 +203,7 @@ class CapturedTape:
 
     def _replay(self, name: str, work: Callable[[], None]):
         if name not in self.graphs:
-            with wp.ScopedCapture(device=self.device) as captured:
+            with collection_paused(), wp.ScopedCapture(device=self.device) as captured:
                 work()
             self.graphs[name] = captured.graph
         wp.capture_launch(self.graphs[name])
