@@ -139,6 +139,26 @@ def renamed_flags(argv: list[str], renames: dict[str, str]) -> list[str]:
     return expand_aliases(argv, renames)
 
 
+def renamed_values(argv: list[str], flags: tuple[str, ...], renames: dict[str, str]) -> list[str]:
+    """``argv`` with each old value (``renames``: old -> new) given to one of ``flags`` (``--learner apg``,
+    ``--learner=apg``) written as the new one, and a line on stderr naming both: the old value is taken until
+    ``settings.deprecation.REMOVED_IN``."""
+    out = []
+    for i, arg in enumerate(argv):
+        name, equals, value = arg.partition("=")
+        if equals and arg.startswith("--") and flag_name(name) in flags and value in renames:
+            flag, old, arg = name, value, f"{name}={renames[value]}"
+        elif i and argv[i - 1].startswith("--") and flag_name(argv[i - 1]) in flags and arg in renames:
+            flag, old, arg = argv[i - 1], arg, renames[arg]
+        else:
+            out.append(arg)
+            continue
+        print(f"note: {flag} {old} is now {flag} {renames[old]}; the old spelling goes in {REMOVED_IN}",
+              file=sys.stderr)
+        out.append(arg)
+    return out
+
+
 def asks_help(argv: list[str]) -> bool:
     """Whether ``argv`` asks for --help or --help-all (then no run needs to exist for the defaults)."""
     return "-h" in argv or "--help" in argv or FULL_HELP in argv

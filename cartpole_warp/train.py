@@ -4,7 +4,7 @@
     python train.py --task cartpole-swingup               # another registered task (listed below)
     python train.py --resume                              # continue the newest run from its last checkpoint
     python train.py --config tutorial                     # a preset (configs/*.yaml) as the starting point
-    python train.py --learner apg                       # backpropagation through the simulator (its own defaults)
+    python train.py --learner shac                        # backpropagation through the simulator (its own defaults)
     python train.py --agent.algorithm.entropy-coef 0.01   # any config field is a flag; --help-all lists them all
     torchrun --nproc_per_node=2 train.py --device cuda --num-envs 4096   # 2 GPUs, 4096 envs on each
 
@@ -14,6 +14,7 @@ summary.json. Ctrl-C stops after the current iteration and saves. Also installed
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import gc
 import math
@@ -37,6 +38,7 @@ from .cli import (
     process_age_s,
     quiet_libraries,
     renamed_flags,
+    renamed_values,
     with_default_value,
 )
 from .engine.runtime import NO_CUDA, resolve_device, timed
@@ -54,6 +56,7 @@ from .rl.config import (
 from .rl.distributed import Ranks
 from .rl.learners import LEARNERS
 from .rl.runs import BEST_CHECKPOINT, RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
+from .settings.agent import RENAMED_LEARNERS, RunnerConfig
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable
 from .settings.presets import presets
@@ -116,9 +119,12 @@ ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-na
                          "--logger": "--agent.logger", "--learner": "--agent.learner",
                          "--seeds": "--population.seeds"}
 """train.py's short flags."""
-RENAMED_FLAGS = {"--algorithm": "--learner"}
+RENAMED_FLAGS = {"--algorithm": "--learner"} | {
+    f"--agent.{old}.{field.name.replace('_', '-')}": f"--agent.{new}.{field.name.replace('_', '-')}"
+    for old, new in RENAMED_LEARNERS.items() for field in dataclasses.fields(getattr(RunnerConfig(), new))}
 """Old spellings still taken, with a warning, until ``settings.deprecation.REMOVED_IN`` (``--algorithm`` named the
-learner while ``agent.algorithm`` is PPO's section)."""
+learner while ``agent.algorithm`` is PPO's section; a renamed learner's section, ``--agent.apg.*``)."""
+LEARNER_FLAGS = ("--learner", "--agent.learner")
 
 
 def task_list() -> str:
@@ -158,7 +164,8 @@ def resolve(argv: list[str]) -> tuple[TrainConfig, Path, Path | None]:
 
 def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, TrainArgs]:
     """``resolve``, and the parsed arguments."""
-    argv = with_default_value(renamed_flags(argv, RENAMED_FLAGS), "--resume", "latest")
+    argv = renamed_values(renamed_flags(argv, RENAMED_FLAGS), LEARNER_FLAGS, RENAMED_LEARNERS)
+    argv = with_default_value(argv, "--resume", "latest")
     first = peek(expand_aliases(argv, ALIASES), task=None, config=None, resume=None, checkpoint=None,
                  log_dir="logs", **{"agent.experiment_name": None, "env.device": None, "agent.learner": None})
     checkpoint = run_dir = None

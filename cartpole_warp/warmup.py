@@ -3,13 +3,13 @@ play.py on this machine compiles nothing.
 
     python -m cartpole_warp.warmup                          # every task, on the CPU
     python -m cartpole_warp.warmup --device cuda:0 --task cartpole-balance
-    python -m cartpole_warp.warmup --device cuda:0 --gradients   # also what tools.sysid and --learner apg compile
+    python -m cartpole_warp.warmup --device cuda:0 --gradients   # also what tools.sysid and --learner shac compile
     WARP_CACHE_PATH=/cache python -m cartpole_warp.warmup   # into another kernel cache (Warp reads the variable)
 
 Each task's env is built with one env and stepped once (every module its training and play load: Newton's solver and
 model kernels, the machinery's and the task's), then recorded for a step as play.py --headless does (Newton's USD
 viewer); with ``--gradients`` also the state tasks' kernels with their adjoints (what ``tools.sysid``,
-``tools.gradcheck`` and ``--learner apg`` compile otherwise on their first run). Also installed as the command
+``tools.gradcheck`` and ``--learner shac`` compile otherwise on their first run). Also installed as the command
 ``cartpole-warmup``.
 """
 
@@ -38,7 +38,7 @@ class WarmupArgs:
     recording: bool = True
     """Also compile what play.py --headless records with (Newton's USD viewer)."""
     gradients: bool = False
-    """Also compile the kernels with their adjoints that tools.sysid, tools.gradcheck and --learner apg run on
+    """Also compile the kernels with their adjoints that tools.sysid, tools.gradcheck and --learner shac run on
     (state tasks: Newton's with adjoints and the differentiable rollout's), one backward pass each."""
 
 

@@ -129,4 +129,30 @@ def test_the_old_names_go_in_the_release_they_name(tmp_path, capsys):
         assert renamed_flags([old, "x"], RENAMED_FLAGS | GRID_ALIASES) == [new, "x"]
         assert f"note: {old} is now {new}; the old spelling goes in {REMOVED_IN}\n" == capsys.readouterr().err
     cfg, _, _ = resolve(["--algorithm=apg", "--log-dir", str(tmp_path)])
-    assert cfg.agent.learner == "apg" and "--algorithm is now --learner" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert cfg.agent.learner == "shac" and "--algorithm is now --learner" in err
+    assert f"note: --learner apg is now --learner shac; the old spelling goes in {REMOVED_IN}" in err
+
+
+def test_the_learner_once_called_apg_is_shac_by_its_old_name_its_old_flags_and_in_an_old_runs_config(tmp_path,
+                                                                                                     capsys):
+    """``--learner apg`` named SHAC (a critic; Brax's APG has none): the old name, its section's flags and a config.yaml
+    written with them still give the same run, until ``REMOVED_IN``."""
+    import yaml
+
+    from cartpole_warp.rl.config import load_train_config
+    from cartpole_warp.settings import agent
+    from cartpole_warp.train import resolve
+
+    old, _, _ = resolve(["--agent.learner", "apg", "--agent.apg.gamma", "0.98", "--log-dir", str(tmp_path)])
+    new, _, _ = resolve(["--learner", "shac", "--agent.shac.gamma", "0.98", "--log-dir", str(tmp_path)])
+    assert old == new and new.agent.learner == "shac" and new.agent.shac.gamma == 0.98
+    err = capsys.readouterr().err
+    assert "note: --agent.learner apg is now --agent.learner shac" in err
+    assert "note: --agent.apg.gamma is now --agent.shac.gamma" in err
+    saved = yaml.safe_load(yaml.safe_dump(
+        {"task": "cartpole-balance", "agent": {"learner": "apg", "apg": {"gamma": 0.98}}}))
+    loaded = load_train_config(saved, "config.yaml").agent
+    assert loaded.learner == "shac" and loaded.shac == new.agent.shac
+    with pytest.warns(DeprecationWarning, match="ApgConfig is now ShacConfig"):
+        assert agent.ApgConfig is agent.ShacConfig

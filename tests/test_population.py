@@ -216,7 +216,7 @@ def test_torchrun_spreads_the_members_over_its_processes_and_each_share_trains_a
     (["--seeds", "1", "--population.vary", "agent.actor.hidden-dims=64"], "agent.actor.hidden-dims: members share"),
     (["--seeds", "1", "--population.vary", "agent.algorithm.gamma=high"], "the values must be numbers"),
     (["--seeds", *map(str, range(100)), "--num-envs", "1000000"], "members of 1,000,000 envs (fewer --seeds or"),
-    (["--seeds", "1", "--learner", "apg"], "cannot train with --learner apg"),
+    (["--seeds", "1", "--learner", "shac"], "cannot train with --learner shac"),
 ])
 def test_bad_population_inputs_are_one_clear_line(tmp_path, flags, message):
     result = call_main("train", *flags, "--device", "cpu", "--max-iterations", "1", "--logger", "none", "--log-dir",

@@ -142,8 +142,8 @@ def test_the_swingups_gpu_and_cpu_configs_differ_only_in_their_device_settings()
     assert device_settings(default) == {"agent.actor.hidden_dims": [16, 16], "agent.critic.hidden_dims": [16, 16]}
     for variant in ("cartpole-swingup-sparse", "cart-two-pole-swingup"):  # not measured with them
         assert device_settings(train_config(variant)) == {}, variant
-    assert train_config("cartpole-swingup", learner="apg").agent.actor.hidden_dims == [64, 64], "APG's own"
-    assert train_config("cartpole-balance", learner="apg").agent.actor.hidden_dims == [32, 32], "as measured"
+    assert train_config("cartpole-swingup", learner="shac").agent.actor.hidden_dims == [64, 64], "SHAC's own"
+    assert train_config("cartpole-balance", learner="shac").agent.actor.hidden_dims == [32, 32], "as measured"
 
 
 def test_on_a_cpu_the_balance_takes_narrow_networks_and_a_gpu_or_a_flag_keeps_the_wide_ones(tmp_path):

@@ -132,7 +132,7 @@ def test_the_runner_is_one_loop_over_learners_found_by_name():
                   if isinstance(node, ast.ClassDef) and any(getattr(base, "id", None) == "TaskRunner"
                                                             for base in node.bases)]
     assert subclasses == []
-    assert {name: learner_class(name).__name__ for name in LEARNERS} == {"ppo": "PpoLearner", "apg": "ApgLearner",
+    assert {name: learner_class(name).__name__ for name in LEARNERS} == {"ppo": "PpoLearner", "shac": "ShacLearner",
                                                                          "sapg": "SapgLearner"}
-    with pytest.raises(KeyError, match="no learner 'sac'; the learners: ppo, apg, sapg"):
+    with pytest.raises(KeyError, match="no learner 'sac'; the learners: ppo, shac, sapg"):
         learner_class("sac")

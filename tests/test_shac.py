@@ -1,4 +1,4 @@
-"""Training by analytic policy gradients through the simulator (``--learner apg``, ``rl.learners.shac``): the critic's
+"""Training by analytic policy gradients through the simulator (``--learner shac``, ``rl.learners.shac``): the critic's
 TD(lambda) targets against their definition, the learner's settings and refusals, a run on every state task, a
 resumed run, and the balance trained to solved and played by ``play.py --headless``."""
 
@@ -10,7 +10,7 @@ from conftest import call_main
 from test_train_cli import only_run, train_to_solved_and_play
 
 from cartpole_warp import tasks
-from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.config import learner_defaults, train_config
 from cartpole_warp.rl.learners.shac.learner import window_targets
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
@@ -48,14 +48,14 @@ def test_the_critics_targets_are_lambda_returns(case):
 
 
 def test_the_learner_chooses_its_own_settings_and_says_so(tmp_path):
-    cfg = train_config("cartpole-balance", learner="apg")
-    chosen = tasks.get("cartpole-balance").learner_defaults["apg"]
-    assert cfg.agent.learner == "apg" and cfg.env.num_envs == chosen["env"]["num_envs"] != train_config().env.num_envs
+    cfg = train_config("cartpole-balance", learner="shac")
+    chosen = learner_defaults(tasks.get("cartpole-balance"), "shac")
+    assert cfg.agent.learner == "shac" and cfg.env.num_envs == chosen["env"]["num_envs"] != train_config().env.num_envs
     assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"]
-    result = call_main("train", "--learner", "apg", "--num-envs", "8", "--max-iterations", "1", "--device", "cpu",
+    result = call_main("train", "--learner", "shac", "--num-envs", "8", "--max-iterations", "1", "--device", "cpu",
                        "--logger", "none", "--log-dir", tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "with --learner apg the task's settings: env.num_envs 8, agent.num_steps_per_env 32" in result.stdout
+    assert "with --learner shac the task's settings: env.num_envs 8, agent.num_steps_per_env 32" in result.stdout
 
 
 @pytest.mark.parametrize(("flags", "message"), [
@@ -65,7 +65,7 @@ def test_the_learner_chooses_its_own_settings_and_says_so(tmp_path):
     (["--env.randomization.obs-noise-std", "0.1"], "env.randomization.obs_noise_std"),
 ])
 def test_what_the_learner_cannot_train_is_one_clear_error(tmp_path, flags, message):
-    result = call_main("train", "--learner", "apg", "--num-envs", "4", "--max-iterations", "1", "--device", "cpu",
+    result = call_main("train", "--learner", "shac", "--num-envs", "4", "--max-iterations", "1", "--device", "cpu",
                        "--logger", "none", "--log-dir", tmp_path, *flags)
     assert result.returncode != 0 and message in result.stderr, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
@@ -77,7 +77,7 @@ def test_every_state_task_trains_a_few_windows_and_resumes(tmp_path, task):
     actor moves, and a resumed run takes the learner's optimizers and target critic back."""
     common = ["--task", task, "--num-envs", "8", "--agent.num-steps-per-env", "4", "--device", "cpu", "--logger",
               "none", "--log-dir", tmp_path, "--no-stop-when-solved"]
-    result = call_main("train", "--learner", "apg", "--max-iterations", "2", *common)
+    result = call_main("train", "--learner", "shac", "--max-iterations", "2", *common)
     assert result.returncode == 0, result.stdout + result.stderr
     run = only_run(tmp_path, task)
     first = torch.load(run / "model_1.pt", weights_only=False)
@@ -99,19 +99,19 @@ def test_every_state_task_trains_a_few_windows_and_resumes(tmp_path, task):
 @pytest.mark.slow
 def test_the_balance_trains_to_solved_by_backpropagation_and_plays(tmp_path):
     """The learner's defaults on the balance: solved (the same rule, the same evaluation) and replayed by play.py."""
-    summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance", "--learner", "apg")
-    assert summary["num_envs"] == tasks.get("cartpole-balance").learner_defaults["apg"]["env"]["num_envs"]
+    summary, played = train_to_solved_and_play(tmp_path, "cartpole-balance", "--learner", "shac")
+    assert summary["num_envs"] == learner_defaults(tasks.get("cartpole-balance"), "shac")["env"]["num_envs"]
     assert played["time_limit_fraction"] >= 0.95 and played["mean_reward_per_step"] >= 0.9
 
 
 def test_a_presets_settings_win_over_the_learners_and_flags_over_both():
-    """Precedence: the learner's defaults < the preset < the flags (``--config tutorial --learner apg`` built the
+    """Precedence: the learner's defaults < the preset < the flags (``--config tutorial --learner shac`` built the
     learner's 64 envs instead of the tutorial's one)."""
     from cartpole_warp.train import resolve
 
-    chosen = tasks.get("cartpole-balance").learner_defaults["apg"]
-    cfg = train_config("cartpole-balance", "tutorial", learner="apg")
+    chosen = learner_defaults(tasks.get("cartpole-balance"), "shac")
+    cfg = train_config("cartpole-balance", "tutorial", learner="shac")
     assert cfg.env.num_envs == 1 != chosen["env"]["num_envs"], "the preset's env count"
     assert cfg.agent.num_steps_per_env == chosen["agent"]["num_steps_per_env"], "the learner's, the preset silent"
-    flagged, _, _ = resolve(["--config", "tutorial", "--learner", "apg", "--num-envs", "3"])
-    assert flagged.env.num_envs == 3 and flagged.agent.learner == "apg"
+    flagged, _, _ = resolve(["--config", "tutorial", "--learner", "shac", "--num-envs", "3"])
+    assert flagged.env.num_envs == 3 and flagged.agent.learner == "shac"

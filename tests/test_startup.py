@@ -144,7 +144,7 @@ print(len(tensordict_import._waiting), tensordict.utils._lock_warn._dynamo_marke
 @pytest.mark.slow
 def test_warmup_fills_an_empty_kernel_cache_so_that_training_and_the_differentiable_rollout_compile_nothing(tmp_path):
     """``warmup --gradients`` into an empty kernel cache compiles the task's kernels, the recorders' and those with
-    adjoints, saying so for the differentiable rollout (tools.sysid's, --learner apg's); after it, a training run and
+    adjoints, saying so for the differentiable rollout (tools.sysid's, --learner shac's); after it, a training run and
     the same rollout with its backward pass compile nothing and add nothing to the cache."""
     cache = tmp_path / "warp-cache"
     with_cache = {**os.environ, "WARP_CACHE_PATH": str(cache)}

@@ -59,28 +59,28 @@ def test_a_variant_that_sets_a_flag_the_sweep_sets_is_refused_with_the_sweeps_op
 
 def test_a_variant_of_other_flags_runs_with_its_own_defaults(tmp_path, capsys):
     """A variant's flags that the sweep does not set pass (whatever their order), and without --num-envs each run
-    takes its own env count: here ``--learner apg``'s."""
-    from cartpole_warp import tasks
+    takes its own env count: here ``--learner shac``'s."""
+    from cartpole_warp.settings.agent import LEARNER_DEFAULTS
     from cartpole_warp.tools.sweep import main
 
-    assert main(["--variants", "learner=apg agent.apg.gamma=0.98", "--seeds", "0", "--max-iterations", "2",
+    assert main(["--variants", "learner=shac agent.shac.gamma=0.98", "--seeds", "0", "--max-iterations", "2",
                  "--no-stop-when-solved", "--log-dir", str(tmp_path)]) == 0
-    assert "| `--learner apg --agent.apg.gamma 0.98` | 0 | not solved |" in capsys.readouterr().out
+    assert "| `--learner shac --agent.shac.gamma 0.98` | 0 | not solved |" in capsys.readouterr().out
     summary = json.loads(next(tmp_path.rglob("summary.json")).read_text())
-    assert summary["num_envs"] == tasks.get("cartpole-balance").learner_defaults["apg"]["env"]["num_envs"]
+    assert summary["num_envs"] == LEARNER_DEFAULTS["shac"]["env"]["num_envs"]
 
 
 def test_a_sweep_trains_its_seeds_as_a_population_and_says_when_a_variant_cannot(tmp_path, capsys):
     """--population: the seeds of a variant as one population, a row per member from its own run folder (played), and
-    a variant that cannot train as a population (--learner apg) runs its seeds one by one, saying why."""
+    a variant that cannot train as a population (--learner shac) runs its seeds one by one, saying why."""
     from cartpole_warp.tools.sweep import main
 
     assert main(["--seeds", "1", "2", "--num-envs", "16", "--max-iterations", "2", "--play", "--population",
-                 "--variants", "", "agent.learner=apg", "--log-dir", str(tmp_path)]) == 0
+                 "--variants", "", "agent.learner=shac", "--log-dir", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "population of (default): 2 members trained together in" in out
-    assert "`--agent.learner apg` cannot train as a population (a population of cartpole-balance cannot train with " \
-           "--learner apg (populations train with PPO)): its seeds run one by one" in out
+    assert "`--agent.learner shac` cannot train as a population (a population of cartpole-balance cannot train with " \
+           "--learner shac (populations train with PPO)): its seeds run one by one" in out
     rows = [line for line in out.splitlines() if line.startswith(("| (default) | 1 |", "| (default) | 2 |"))]
     assert len(rows) == 2
     assert all(row.split("|")[-2].strip() != "-" for row in rows), "each member was played"

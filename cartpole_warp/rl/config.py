@@ -14,7 +14,16 @@ from dataclasses import dataclass, field
 from typing import Generic
 
 from .. import tasks
-from ..settings.agent import ActorConfig, DistributionConfig, ModelConfig, PpoConfig, RunnerConfig
+from ..settings.agent import (
+    LEARNER_DEFAULTS,
+    PPO_UPDATE_LEARNERS,
+    ActorConfig,
+    DistributionConfig,
+    ModelConfig,
+    PpoConfig,
+    RunnerConfig,
+    with_current_learner_names,
+)
 from ..settings.config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
@@ -63,7 +72,7 @@ class TrainConfig(RunSettings, Generic[TaskT]):
                 f"({self.eval.max_interval})")
         rollout = self.env.num_envs * self.agent.num_steps_per_env
         mini_batches = self.agent.algorithm.num_mini_batches
-        require(self.agent.learner == "apg" or rollout % mini_batches == 0,
+        require(self.agent.learner not in PPO_UPDATE_LEARNERS or rollout % mini_batches == 0,
                 f"agent.algorithm.num_mini_batches ({mini_batches}) must divide num_envs * agent.num_steps_per_env "
                 f"({rollout})")
         sapg = self.agent.sapg
@@ -89,7 +98,7 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     data = merge(data, device_defaults(base.task_spec, env.device))
     chosen = learner or preset_data.get("agent", {}).get("learner")
     if chosen is not None:
-        data = merge(merge(data, base.task_spec.learner_defaults.get(chosen, {})), {"agent": {"learner": chosen}})
+        data = merge(merge(data, learner_defaults(base.task_spec, chosen)), {"agent": {"learner": chosen}})
     if preset is not None:  # the preset over the task's and the learner's choices, its env section too
         data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
     return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
@@ -116,10 +125,16 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
     return device_settings(cfg) if on_gpu(cfg.env.device) else {}
 
 
+def learner_defaults(task: tasks.Task, learner: str) -> dict:
+    """What ``learner`` changes in ``task``'s defaults: its own (``settings.agent.LEARNER_DEFAULTS``), then what the
+    task tunes for it (``Task.learner_defaults``)."""
+    return merge(LEARNER_DEFAULTS.get(learner, {}), task.learner_defaults.get(learner, {}))
+
+
 def learner_settings(cfg: TrainConfig) -> dict[str, object]:
-    """The settings the task chooses for ``cfg``'s learner (``Task.learner_defaults``), as ``gpu_settings``; {} where
-    it chooses none (PPO, ``sapg``)."""
-    return chosen_settings(cfg, cfg.task_spec.learner_defaults.get(cfg.agent.learner, {}))
+    """The settings ``cfg``'s learner and the task choose for it (``learner_defaults``), as ``gpu_settings``; {} where
+    they choose none (PPO, ``sapg``)."""
+    return chosen_settings(cfg, learner_defaults(cfg.task_spec, cfg.agent.learner))
 
 
 def chosen_settings(cfg: TrainConfig, defaults: dict) -> dict[str, object]:
@@ -157,8 +172,8 @@ def load_train_config(data: dict, where: str) -> TrainConfig:
     """A saved TrainConfig (a run's ``config.yaml``) from its dict: the task it names picks the settings' class, and
     its defaults fill any field the file lacks (one written before the field existed)."""
     task = overrides_dict(data, f"{where}:").get("task", tasks.DEFAULT_TASK)
-    base = train_config(task)
-    return from_dict(TrainConfig[type(base.env.task)], merge(dataclasses.asdict(base), data), where)
+    base, saved = train_config(task), with_current_learner_names(data)
+    return from_dict(TrainConfig[type(base.env.task)], merge(dataclasses.asdict(base), saved), where)
 
 
 __all__ = ["ActorConfig", "ConfigError", "DistributionConfig", "ModelConfig", "PpoConfig", "RunnerConfig",

@@ -31,6 +31,11 @@ from .runs import RunError
 ONNX_FILE, JIT_FILE = "policy.onnx", "policy.pt"
 """The exports' file names (in a run's ``exported/``)."""
 
+RSL_RL_KEYS = ("num_steps_per_env", "save_interval", "run_name", "logger", "torch_compile_mode", "algorithm", "actor",
+               "critic")
+"""The fields of ``RunnerConfig`` that rsl-rl's ``train_cfg`` holds; the others are the project's (the run's length and
+names, the learners and their sections)."""
+
 SYNC_FREE_PPO = "cartpole_warp.rl.learners.ppo.sync_free:SyncFreePPO"
 """rsl-rl's ``class_name`` of the PPO learner's ``SyncFreePPO`` (``agent.algorithm.class_name: SyncFreePPO``), named
 by path: the networks' layer does not import the learners'."""
@@ -121,11 +126,8 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -
     themselves), our own fields left out; ``mirror``: the task has a mirror (``symmetry`` applies); ``images``: the
     policy observes camera frames (a CNN actor, ``ImageModel``, on the 'policy' group; the critic an MLP on the
     task's state, the 'critic' group: an asymmetric actor-critic)."""
-    cfg = dataclasses.asdict(agent)
+    cfg = {key: value for key, value in dataclasses.asdict(agent).items() if key in RSL_RL_KEYS}
     cnn = cfg["actor"].pop("cnn")
-    for key in ("max_iterations", "init_at_random_ep_len", "experiment_name", "wandb_project", "cuda_graph", "learner",
-                "apg", "sapg"):
-        del cfg[key]
     del cfg["algorithm"]["symmetry"]
     if agent.algorithm.symmetry and mirror:
         cfg["algorithm"]["symmetry_cfg"] = {"use_data_augmentation": True,

@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 import pydantic
 
 from .config import NO_UNKNOWN_KEYS, Count, Flag, Fraction, Name, NonNegative, Positive
+from .deprecation import renamed
 
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
 """rsl-rl's activation names (``rsl_rl.utils.resolve_nn_activation``)."""
@@ -18,9 +19,26 @@ Schedule = Literal["adaptive", "fixed"]
 Algorithm = Literal["PPO", "SyncFreePPO"]
 """rsl-rl's ``PPO``, or ``SyncFreePPO`` (``rl.learners.ppo``: the same update without host syncs)."""
 MetricsLogger = Literal["tensorboard", "wandb", "none"]
-Learner = Literal["ppo", "apg", "sapg"]
-"""'ppo' (rsl-rl's PPO on the env's transitions), 'apg' (``rl.learners.shac``: analytic policy gradients through the
-simulator) or 'sapg' (``rl.learners.sapg``: a leader PPO policy learning from its followers' envs too)."""
+Learner = Literal["ppo", "shac", "sapg"]
+"""'ppo' (rsl-rl's PPO on the env's transitions), 'shac' (``rl.learners.shac``: short-horizon analytic policy gradients
+through the simulator, with a critic) or 'sapg' (``rl.learners.sapg``: a leader PPO policy learning from its
+followers' envs too)."""
+LEARNER_DEFAULTS: dict[str, dict] = {
+    "shac": {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,
+                                                "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
+                                                "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
+             "eval": {"in_step": False}},
+}
+"""What a learner changes in every task's defaults (``env``, ``agent`` and run sections), before what a task tunes for
+it (``Task.learner_defaults``) and a preset; 'ppo' and 'sapg' take the task's own. SHAC: 64 envs, windows of 32 env
+steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on every device (a task's
+PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself); chosen on
+the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
+PPO_UPDATE_LEARNERS = ("ppo", "sapg")
+"""The learners whose update is PPO's (``algorithm``'s settings, whose mini-batches must split a rollout evenly)."""
+RENAMED_LEARNERS = {"apg": "shac"}
+"""Old learner names (``--learner apg`` named SHAC, which has a critic; Brax's APG has none) -> their names, taken
+with a note until ``deprecation.REMOVED_IN``; a saved config's old section (``agent.apg``) is read as the new one."""
 
 
 @dataclass
@@ -122,7 +140,7 @@ class PpoConfig:
 
 
 @dataclass
-class ApgConfig:
+class ShacConfig:
     """Short-horizon analytic policy gradients (``rl.learners.shac``, after SHAC: Xu et al., ICLR 2022): each iteration
     backpropagates the return of a window of ``num_steps_per_env`` env steps of every env, plus the critic's value of
     where each window ends, through the simulator into the actor; the critic learns TD(lambda) targets of the same
@@ -211,11 +229,30 @@ class RunnerConfig:
     torch_compile_mode: Literal["default", "max-autotune-no-cudagraphs"] | None = None
     """rsl-rl's torch.compile of the actor and critic (None: not compiled)."""
     learner: Learner = "ppo"
-    """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO (settings ``algorithm``); 'apg', analytic policy
-    gradients through the simulator (``apg``); 'sapg', a PPO leader learning from followers' envs too (``sapg`` and
-    ``algorithm``); docs/training.md says what each trains."""
+    """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO (settings ``algorithm``); 'shac', short-horizon
+    analytic policy gradients through the simulator (``shac``); 'sapg', a PPO leader learning from followers' envs too
+    (``sapg`` and ``algorithm``); docs/training.md says what each trains."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
-    apg: ApgConfig = field(default_factory=ApgConfig)
+    shac: ShacConfig = field(default_factory=ShacConfig)
     sapg: SapgConfig = field(default_factory=SapgConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)
+
+
+def with_current_learner_names(data: dict) -> dict:
+    """A config's dict (a saved run's ``config.yaml``) with an old learner name (``RENAMED_LEARNERS``) in
+    ``agent.learner`` and its old section as the new one's, until ``deprecation.REMOVED_IN``."""
+    agent = data.get("agent")
+    if not isinstance(agent, dict):
+        return data
+    agent = dict(agent)
+    for old, new in RENAMED_LEARNERS.items():
+        if agent.get("learner") == old:
+            agent["learner"] = new
+        if old in agent:
+            agent[new] = agent.pop(old)
+    return {**data, "agent": agent}
+
+
+__getattr__ = renamed(__name__, {"ApgConfig": "ShacConfig"})
+"""The old name of ``ShacConfig``, until ``deprecation.REMOVED_IN``."""

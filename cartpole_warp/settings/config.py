@@ -440,7 +440,7 @@ def _error_line(cls: type[Config], error: Any, key_prefix: str) -> str:
 
 def refuse_present(cannot: str, problems: dict[str, bool]) -> None:
     """ConfigError '<cannot> with A; B' naming every problem present (``problems``: each in words, with whether it
-    is), if any: ``refuse_present("--learner apg cannot train cartpole-balance", {...})``."""
+    is), if any: ``refuse_present("--learner shac cannot train cartpole-balance", {...})``."""
     named = [what for what, present in problems.items() if present]
     require(not named, f"{cannot} with {'; '.join(named)}")
 

@@ -34,22 +34,6 @@ one path did not on the other (docs/benchmarks.md, 2026-12-01). A task takes 'au
 in one GPU session, all solve on tiles with a lower median and worst time to solved."""
 
 
-APG_DEFAULTS = {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,
-                                                    "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
-                                                    "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
-                "eval": {"in_step": False}}
-"""A task's settings for ``--learner apg`` unless it names its own (``Task.learner_defaults``): 64 envs, windows of 32
-env steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on every device (a
-task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself);
-chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
-
-
-def learner_defaults(**by_learner: dict) -> dict[str, dict]:
-    """``Task.learner_defaults``: the given learners' settings (``apg=...``), the generic ones for the others (PPO and
-    ``sapg`` take the task's own)."""
-    return {"apg": APG_DEFAULTS} | by_learner
-
-
 @dataclass(frozen=True)
 class Task:
     """What the machinery needs to know of a task."""
@@ -76,10 +60,11 @@ class Task:
     """Overrides of ``defaults`` (``agent`` and run sections, no ``env``) where the run's device is a CPU, as
     ``gpu_defaults`` where it is a GPU (there a network's width costs little; on a CPU every product and activation
     costs its samples). train.py names them in its first lines; a variant inherits them as ``gpu_defaults``."""
-    learner_defaults: dict[str, dict] = field(default_factory=learner_defaults)
-    """Per learner other than 'ppo', overrides of ``defaults`` (``env``, ``agent`` and run sections) where the run
-    trains with ``--learner NAME`` (``apg``: analytic policy gradients, few envs and longer windows); train.py names
-    them in its first lines."""
+    learner_defaults: dict[str, dict] = field(default_factory=dict)
+    """Per learner, what this task tunes for it (``env``, ``agent`` and run sections) over the learner's own defaults
+    (``settings.agent.LEARNER_DEFAULTS``) where the run trains with ``--learner NAME``; train.py names them in its first
+    lines. A variant made with ``dataclasses.replace`` inherits them: give it its own (``{}``: none) unless measured
+    with them."""
     gym_ids: dict[str, str | None] = field(default_factory=dict)
     """gymnasium ids (``cartpole_warp/...-v0``) and the preset each builds (None: the task's defaults)."""
 

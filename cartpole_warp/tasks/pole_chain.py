@@ -6,7 +6,7 @@ docstring."""
 from dataclasses import dataclass, replace
 
 from ..settings.config import Name, merge
-from . import DENSE_PATH, SolvedRule, learner_defaults, register, swingup
+from . import DENSE_PATH, SolvedRule, register, swingup
 
 
 @dataclass
@@ -80,5 +80,5 @@ for env_class, words, min_reward_per_step, width, steps_per_env, gpu_defaults, g
                                                          "actor": networks, "critic": networks},
                                                "eval": {"max_interval": 100}}),
         gpu_defaults=gpu_defaults, cpu_defaults={},  # the single pole's were not measured on the chains
-        learner_defaults=learner_defaults(),  # the swing-up's were not measured here
+        learner_defaults={},  # the swing-up's were not measured here
         gym_ids={f"cartpole_warp/{gym_id}-v0": None}))

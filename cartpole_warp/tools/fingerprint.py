@@ -1,6 +1,7 @@
 """The numbers a restructuring must not move: the weights and optimizer states of fixed-seed CPU runs of
-``train.py`` (a solo run and a three-member population of the balance and of the swing-up, one ``--learner apg`` and
-one ``--learner sapg`` run, each past its first evaluation), as a SHA-256 digest per checkpoint tensor tree.
+``train.py`` (a solo run and a three-member population of the balance and of the swing-up, one SHAC and one
+``--learner sapg`` run, each past its first evaluation), as a SHA-256 digest per checkpoint tensor tree. The SHAC run
+is named and asked for by the learner's old name, ``apg``, which trees before and after its rename both take.
 
     python -m cartpole_warp.tools.fingerprint --out after.json                    # this checkout's train.py
     git archive BASE | tar -x -C /tmp/base

@@ -75,7 +75,7 @@ class SweepArgs:
     population: bool = False
     """Train each variant's seeds together, as one population (``train.py --seeds``: one process, one batched env;
     a seed's seconds are then the population's until that member's verdict); a variant that cannot train as a
-    population (a camera task, ``--learner apg``, ...) runs its seeds one by one, and the sweep says why."""
+    population (a camera task, ``--learner shac``, ...) runs its seeds one by one, and the sweep says why."""
 
 
 @dataclass

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from ..config import TrainConfig
     from ..distributed import Ranks
 
-LEARNERS = {"ppo": f"{__name__}.ppo.learner:PpoLearner", "apg": f"{__name__}.shac.learner:ApgLearner",
+LEARNERS = {"ppo": f"{__name__}.ppo.learner:PpoLearner", "shac": f"{__name__}.shac.learner:ShacLearner",
             "sapg": f"{__name__}.sapg.learner:SapgLearner"}
 """Each learner's class by name, imported when asked for (the backpropagation learner imports the differentiable
 rollout, which a PPO run need not load)."""

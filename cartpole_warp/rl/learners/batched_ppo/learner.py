@@ -20,7 +20,7 @@ from ....evaluation.statistics import EpisodeStats, EpisodeSummary, summary_of
 from ....wrappers.rsl_rl import RslRlVecEnv, mirror
 from ...config import TrainConfig
 from ...policies import build_networks
-from .update import ADAM_BETAS, ADAM_EPS, BatchedActorCritic, PopulationPPO
+from .update import PPO_ADAM_BETAS, PPO_ADAM_EPS, BatchedActorCritic, PopulationPPO
 
 VARIABLE_SETTINGS = ("learning_rate", "entropy_coef", "gamma", "lam", "clip_param", "desired_kl", "value_loss_coef",
                      "max_grad_norm")
@@ -246,7 +246,7 @@ class MemberLearner:
         step = ppo.adam_steps[k].to(torch.float32).cpu()
         state = {i: {"step": step.clone(), "exp_avg": moments[0][role][name].clone(),
                      "exp_avg_sq": moments[1][role][name].clone()} for i, (role, name) in enumerate(names)}
-        group = {"lr": ppo.learning_rate[k].item(), "betas": ADAM_BETAS, "eps": ADAM_EPS, "weight_decay": 0,
+        group = {"lr": ppo.learning_rate[k].item(), "betas": PPO_ADAM_BETAS, "eps": PPO_ADAM_EPS, "weight_decay": 0,
                  "amsgrad": False, "maximize": False, "foreach": None, "capturable": False, "differentiable": False,
                  "fused": None, "decoupled_weight_decay": False, "params": list(range(len(names)))}
         self.train_mode()

@@ -31,7 +31,7 @@ Mirror = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor
 """Symmetry augmentation of flat batches: (obs (B, O), actions (B, A)) -> (obs (C*B, O), actions (C*B, A)), the
 originals first, then C-1 mirrored copies (rsl-rl's ``data_augmentation_func`` convention, without ``env``)."""
 
-ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
+PPO_ADAM_BETAS, PPO_ADAM_EPS = (0.9, 0.999), 1e-8
 """torch.optim.Adam's defaults, which rsl-rl's PPO uses."""
 
 
@@ -442,7 +442,7 @@ class PopulationPPO:
         for part in grad.split([self.model.num_actor_params, grad.shape[1] - self.model.num_actor_params], dim=1):
             norm = torch.linalg.vector_norm(part, dim=1, keepdim=True)
             part.mul_((max_norm / (norm + 1e-6)).clamp(max=1.0))
-        beta1, beta2 = ADAM_BETAS
+        beta1, beta2 = PPO_ADAM_BETAS
         active = self.active[:, None]
         self.adam_steps += self.active
         steps = self.adam_steps.clamp(min=1.0)[:, None]
@@ -450,5 +450,5 @@ class PopulationPPO:
         self.exp_avg_sq.mul_(torch.where(active, beta2, 1.0)).add_((1 - beta2) * active * grad * grad)
         step_size = (self.learning_rate[:, None] * active / (1 - beta1**steps)).float()
         bias_correction2_sqrt = (1 - beta2**steps).sqrt().float()
-        denom = (self.exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(ADAM_EPS)
+        denom = (self.exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(PPO_ADAM_EPS)
         self.model.params.sub_(step_size * (self.exp_avg / denom))

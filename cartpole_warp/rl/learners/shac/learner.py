@@ -1,8 +1,8 @@
-"""``ApgLearner``: training by short-horizon analytic policy gradients through the simulator (SHAC: Xu et al.,
+"""``ShacLearner``: training by short-horizon analytic policy gradients through the simulator (SHAC: Xu et al.,
 "Accelerated Policy Learning with Parallel Differentiable Simulation", ICLR 2022), for any state task on
 SolverFeatherstone.
 
-    python train.py --task cartpole-balance --learner apg --num-envs 256
+    python train.py --task cartpole-balance --learner shac --num-envs 256
 
 Each iteration runs every env ``agent.num_steps_per_env`` env steps on ``gradients.DifferentiableRollout`` under the
 actor's actions and ascends, by the gradient through the simulator's adjoints, the window's discounted rewards plus
@@ -47,12 +47,12 @@ def window_targets(rewards: torch.Tensor, next_values: torch.Tensor, terminated:
     return targets
 
 
-ADAM_BETAS = (0.7, 0.95)
+SHAC_ADAM_BETAS = (0.7, 0.95)
 """SHAC's Adam betas for both networks (its released configs)."""
 
 
-def check_apg(cfg: TrainConfig):
-    """ConfigError, before anything is built, where ``--learner apg`` cannot train ``cfg`` as asked."""
+def check_shac(cfg: TrainConfig):
+    """ConfigError, before anything is built, where ``--learner shac`` cannot train ``cfg`` as asked."""
     problems = {
         "a task that observes camera frames (the renderer has no adjoint)": cfg.env.camera.enabled,
         "env.sim.solver other than featherstone (mujoco-warp's adjoints are not here)":
@@ -63,34 +63,35 @@ def check_apg(cfg: TrainConfig):
         "agent.torch_compile_mode (the learner steps the networks itself)": cfg.agent.torch_compile_mode is not None,
         "eval.in_step (the learner steps its envs itself; evaluations run on envs of their own)": cfg.eval.in_step,
     }
-    refuse_present(f"--learner apg cannot train {cfg.task}", problems)
+    refuse_present(f"--learner shac cannot train {cfg.task}", problems)
 
 
-class ApgLearner:
+class ShacLearner:
     """SHAC's iterations (module docstring) on ``env`` (``rl.learners.Learner``)."""
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
         """``env_cfg`` with Newton's modules compiled with their adjoints (``sim.gradients``) for every env of the
         process, the evaluation's too (the option is Newton's, per module: envs built without it would compile them
-        again); ConfigError where the learner cannot train ``cfg`` (``check_apg``) or under torchrun."""
-        check_apg(cfg)
+        again); ConfigError where the learner cannot train ``cfg`` (``check_shac``) or under torchrun."""
+        check_shac(cfg)
         if ranks.distributed:
-            raise ConfigError("--learner apg trains in one process (not under torchrun)")
+            raise ConfigError("--learner shac trains in one process (not under torchrun)")
         return dataclasses.replace(env_cfg, sim=dataclasses.replace(env_cfg.sim, gradients=True))
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, rsl_rl_cfg: dict, episodes: EpisodeStats):
-        check_apg(cfg)
+        check_shac(cfg)
         self.env, self.episodes, self.device = env, episodes, env.device
         self.clock = PhaseClock(self.device, phases=2)
-        self.settings = s = cfg.agent.apg
+        self.settings = s = cfg.agent.shac
         self.horizon = cfg.agent.num_steps_per_env
         self.rollout = DifferentiableRollout(env.env, self.horizon)
         self.actor, self.critic = build_networks(env, rsl_rl_cfg)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.actor_learning_rate, betas=ADAM_BETAS)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=s.actor_learning_rate,
+                                                betas=SHAC_ADAM_BETAS)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=s.critic_learning_rate,
-                                                 betas=ADAM_BETAS)
+                                                 betas=SHAC_ADAM_BETAS)
         self.learning_rate = s.actor_learning_rate
         self.on_step = None
         """rsl-rl's console's per-step hook: a window has no env steps of its own to report."""
@@ -237,7 +238,8 @@ class ApgLearner:
         return torch.full((self.env.num_actions,), self.settings.action_noise_std, device=self.device)
 
     def state_dict(self) -> dict:
-        """The networks as rsl-rl's checkpoints hold them, and the learner's optimizers and target critic."""
+        """The networks as rsl-rl's checkpoints hold them, and the learner's optimizers and target critic (under
+        ``apg_state_dict``, the key of the checkpoints written before the learner's name was ``shac``)."""
         return {"actor_state_dict": self.actor.state_dict(), "critic_state_dict": self.critic.state_dict(),
                 "apg_state_dict": {"actor_optimizer": self.actor_optimizer.state_dict(),
                                    "critic_optimizer": self.critic_optimizer.state_dict(),
