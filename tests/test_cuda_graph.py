@@ -96,7 +96,7 @@ def test_the_collector_is_paused_inside_a_capture_and_as_it_was_after():
     after an error, and left off where the caller had paused it."""
     import gc
 
-    from cartpole_warp.engine.streams import collection_paused
+    from cartpole_warp.engine.runtime import collection_paused
 
     assert gc.isenabled()
     with collection_paused():
@@ -115,8 +115,9 @@ def test_the_collector_is_paused_inside_a_capture_and_as_it_was_after():
 
 
 DEAD_GRAPH_THEN_CAPTURE = """
-import gc, sys, torch
+import gc, sys, torch, warp
 from cartpole_warp.engine.streams import TorchGraph
+warp.init()
 x, ended_runs = torch.zeros(4, device=sys.argv[1]), []
 def ended_run():
     graph = TorchGraph(sys.argv[1])
@@ -141,7 +142,7 @@ print("captured", x.tolist())
 def test_a_capture_survives_an_ended_runs_graph_left_to_the_collector(cuda, tmp_path):
     """A second training in one process (``tools.sweep``'s seeds) captured while the collector freed the first run's
     graph from a reference cycle: torch's ``CUDAGraph.reset`` inside the capture broke it and the process died
-    (SIGSEGV, H200, 2026-12-01). Every capture pauses the collector (``streams.collection_paused``)."""
+    (SIGSEGV, H200, 2026-12-01). Every capture pauses the collector (``runtime.collection_paused``)."""
     import subprocess
     import sys
 

@@ -5,6 +5,7 @@ Nothing here knows the cartpole; an env for another robot keeps it.
 
 from __future__ import annotations
 
+import gc
 import importlib
 import logging
 import os
@@ -187,6 +188,21 @@ class GraphReplay:
             self._pool.shutdown()
 
 
+@contextmanager
+def collection_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off inside (as it was after): a CUDA graph it frees during a capture (an ended
+    run's, held by a reference cycle: a second training in one process) breaks the capture and ends the process
+    (``CUDAGraph.reset`` is not permitted while a stream captures). torch no longer collects before a capture
+    (``torch.compiler.config.force_cudagraph_gc``), and Warp never did; every capture here runs inside this."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 class ShardedStep:
     """``step_fn(shard)`` for every shard: captured once per shard and replayed (``capture=True``), or launched.
 
@@ -199,7 +215,7 @@ class ShardedStep:
         if capture:
             graphs = []
             for shard in shards:
-                with order, streams.collection_paused(), wp.ScopedCapture(device=shard.scene.model.device) as captured:
+                with order, collection_paused(), wp.ScopedCapture(device=shard.scene.model.device) as captured:
                     step_fn(shard)
                 graphs.append(captured.graph)
             self.replay = GraphReplay(graphs)

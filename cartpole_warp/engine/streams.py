@@ -5,7 +5,6 @@ when an env is built.
 
 from __future__ import annotations
 
-import gc
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -15,6 +14,7 @@ import torch
 import warp as wp
 
 from ..settings.deprecation import renamed
+from .runtime import collection_paused
 
 
 def check_tensor(name: str, value: Any, shapes: tuple, dtype: torch.dtype, device: str) -> torch.Tensor:
@@ -65,21 +65,6 @@ class StreamOrder:
         """Whether torch is capturing a CUDA graph on the device's current stream (the env's own captured graph is then
         not replayed but its kernels launched into the outer capture)."""
         return self.device != "cpu" and torch.cuda.is_current_stream_capturing()
-
-
-@contextmanager
-def collection_paused() -> Iterator[None]:
-    """Python's cyclic garbage collector off inside (as it was after): a CUDA graph it frees during a capture (an ended
-    run's, held by a reference cycle: a second training in one process) breaks the capture and ends the process
-    (``CUDAGraph.reset`` is not permitted while a stream captures). torch no longer collects before a capture
-    (``torch.compiler.config.force_cudagraph_gc``), and Warp never did; every capture here runs inside this."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
 
 
 class TorchGraph:

@@ -47,10 +47,10 @@ from ..engine.parameters import (
     of_quantity,
 )
 from ..engine.randomization import EnvPhysics, Layout, ModelFields, forces_less_friction, write_env
-from ..engine.runtime import load_modules
+from ..engine.runtime import collection_paused, load_modules
 from ..engine.scene import build_scene, make_solver
 from ..engine.step_rules import all_within, clip_actions, role_state, set_role_state, with_time_limit
-from ..engine.streams import StreamOrder, collection_paused
+from ..engine.streams import StreamOrder
 
 
 @dataclass
