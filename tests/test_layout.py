@@ -50,7 +50,7 @@ def test_the_root_holds_the_programs_and_the_face():
     modules = sorted(p.stem for p in root.glob("*.py"))
     assert modules == ["__init__", "cli", "play", "train", "warmup"]
     assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == {
-        "engine", "evaluation", "gradients", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
+        "engine", "evaluation", "gradients", "identification", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
 
 
 @pytest.mark.parametrize("name", ["load_policy", "NullLogWriter"])
@@ -69,6 +69,15 @@ def test_the_batched_learners_parts_that_left_rl_population_answer_from_its_fold
     monkeypatch.delitem(vars(population), name, raising=False)
     with pytest.warns(DeprecationWarning, match=f"rl.population.{name} is now cartpole_warp.rl.learners.batched_ppo"):
         assert getattr(population, name) is getattr(learner, name)
+
+
+@pytest.mark.parametrize("name", ["fit", "SysidArgs", "read_problem"])
+def test_the_sysid_library_that_left_its_program_answers_from_identification(monkeypatch, name):
+    program = importlib.import_module("cartpole_warp.tools.sysid")
+    library = importlib.import_module("cartpole_warp.identification.sysid")
+    monkeypatch.delitem(vars(program), name, raising=False)
+    with pytest.warns(DeprecationWarning, match=f"tools.sysid.{name} is now cartpole_warp.identification.sysid"):
+        assert getattr(program, name) is getattr(library, name)
 
 
 def test_the_gymnasium_envs_old_core_attribute_is_their_env():

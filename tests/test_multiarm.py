@@ -12,8 +12,9 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.evaluation.trajectories import Recording, write_trajectory
+from cartpole_warp.identification import sysid
 from cartpole_warp.settings.config import ConfigError
-from cartpole_warp.tools import multiarm, sysid
+from cartpole_warp.tools import multiarm
 
 scipy_io = pytest.importorskip("scipy.io")
 DATA = Path(__file__).parent / "data" / "multiarm"

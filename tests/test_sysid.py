@@ -10,9 +10,9 @@ from test_physics import PHYSICS_DT_S, closed_form_rollout, observed_states, sta
 
 import cartpole_warp
 from cartpole_warp.evaluation.trajectories import Recording, TrajectoryRecorder, read_trajectory, write_trajectory
+from cartpole_warp.identification import sysid
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.settings.config import ConfigError
-from cartpole_warp.tools import sysid
 
 HIDDEN = {"cart_mass_kg": 1.2, "pole_mass_kg": 0.085, "pole_com_m": 0.42}
 """The swing-up's physics off its stage's (1 kg, 0.1 kg, 0.5 m)."""

@@ -32,9 +32,9 @@ import yaml
 from ..cli import clean_errors, parse, quiet_libraries
 from ..engine.scene import StageError
 from ..evaluation.trajectories import Recording, write_trajectory
+from ..identification import sysid
 from ..settings.config import ConfigError, require
 from ..settings.files import write_text
-from . import sysid
 
 POLES = ("pole", "pole2")
 """The joint roles of the arms, from the cart up."""
