@@ -8,6 +8,8 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.distributed import SINGLE_PROCESS
+from cartpole_warp.rl.learners import learner_class
 from cartpole_warp.rl.progress import eta_s
 from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.rl.runs import (
@@ -78,13 +80,16 @@ def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path)
         load_policy(env, cfg.agent, tmp_path / "model.pt")
 
 
-def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(capsys):
+@pytest.mark.parametrize("learner", ["ppo", "shac"])
+def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(capsys, learner):
     """A balancing policy ends no episode for many iterations; its console row says the envs are still running and
-    for how long, not only that nothing finished."""
-    cfg = train_config()
-    cfg.env.num_envs, cfg.agent.num_steps_per_env = 16, 2
+    for how long (the learner's count: SHAC steps a rollout of its own, not the env), not only that nothing
+    finished."""
+    cfg = train_config(learner=learner)
+    cfg.env.num_envs, cfg.agent.num_steps_per_env, cfg.agent.init_at_random_ep_len = 16, 2, False
+    env_cfg = learner_class(learner).env_config(cfg, cfg.env, SINGLE_PROCESS)
     torch.manual_seed(0)
-    runner = TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
+    runner = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(env_cfg)), cfg, None)
     runner.learn(2)
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
     dt = cfg.env.sim.env_dt

@@ -14,9 +14,9 @@ from pathlib import Path
 from rsl_rl.utils.logger import Logger
 
 from ..evaluation.statistics import EpisodeSummary
-from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
 from .distributed import Ranks
+from .learners import Learner
 
 LONG_RUN_S = 3600.0
 """A run whose first iteration foretells more than this says so, with what makes it shorter."""
@@ -71,8 +71,8 @@ def run_eta_s(progress, start_s: float, span: tuple[int, int, int], evaluations)
 class ProgressLine:
     """The console line of each iteration of one run of ``cfg``'s task on ``env``."""
 
-    def __init__(self, cfg: TrainConfig, env: RslRlVecEnv, device: str):
-        self.cfg, self.env, self.device = cfg, env, device
+    def __init__(self, cfg: TrainConfig, learner: Learner, device: str):
+        self.cfg, self.learner, self.env, self.device = cfg, learner, learner.env, device
         self.solved_rule, self.play_metric = cfg.task_spec.solved, cfg.task_spec.play_metric
         self.staggered_starts = False
         """The run started each env's time-out counter at a random step (its first iteration's line says so)."""
@@ -103,7 +103,7 @@ class ProgressLine:
         """The training episodes' part of the line."""
         dt = self.cfg.env.sim.env_dt
         if not stats.episodes:  # a policy that balances ends no episode for many iterations: how long they have run
-            running_s = self.env.episode_length_buf.float().mean().item() * dt
+            running_s = self.learner.episode_steps.float().mean().item() * dt
             return f"no episode ended; {self.env.num_envs} running, {running_s:5.2f} s in on average".ljust(60)
         full = ""
         if self.solved_rule.full_episodes_only:  # the rule's own figure, padded so the columns stay aligned
@@ -167,12 +167,13 @@ class Report:
     ``console: rsl_rl``, else its metrics writer: TensorBoard, wandb or none, in ``log_dir``; None writes nothing) and,
     on the process that writes, the console line."""
 
-    def __init__(self, cfg: TrainConfig, env: RslRlVecEnv, rsl_rl_cfg: dict, log_dir: Path | None, ranks: Ranks):
+    def __init__(self, cfg: TrainConfig, learner: Learner, rsl_rl_cfg: dict, log_dir: Path | None, ranks: Ranks):
+        env = learner.env  # the envs its episodes are of
         self.logger = Logger(str(log_dir) if log_dir is not None else None, rsl_rl_cfg, env.cfg, env.num_envs,
                              ranks.distributed, ranks.world_size, ranks.rank, env.device)
         self.logger.git_status_repos = [path for path in (*self.logger.git_status_repos, __file__)
                                         if in_git_repository(path)]
-        self.line = ProgressLine(cfg, env, env.device)
+        self.line = ProgressLine(cfg, learner, env.device)
         self.rsl_rl_console, self.writes = cfg.console == "rsl_rl", ranks.writes
         self.console = True
         """Print the console line (a population prints its own)."""

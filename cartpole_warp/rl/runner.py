@@ -54,7 +54,7 @@ class TaskRunner:
         self.learner, self.episodes = learner, learner.episodes
         self.in_step = env.evaluation  # the evaluation inside the training's step (None: on eval_env, if any)
         self.evaluations = Evaluations(cfg, self.learner, eval_env, self.in_step)
-        self.report = Report(cfg, learner.env, self.cfg, log_dir, self.ranks)  # the envs its episodes are of
+        self.report = Report(cfg, learner, self.cfg, log_dir, self.ranks)
         self.logger = self.report.logger  # rsl-rl's, with the metrics writer
         if cfg.console == "rsl_rl":
             self.learner.on_step = self.logger.process_env_step

@@ -66,6 +66,10 @@ class Learner(Protocol):
     def action_std(self) -> torch.Tensor:
         """The training actions' standard deviation, per action."""
 
+    @property
+    def episode_steps(self) -> torch.Tensor:
+        """(N,) each of ``env``'s envs' steps into its running episode, as its time-out counter counts them."""
+
     def train_mode(self) -> None: ...
 
     def eval_mode(self) -> None:

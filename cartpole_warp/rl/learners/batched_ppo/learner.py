@@ -215,6 +215,10 @@ class MemberLearner:
     def action_std(self) -> torch.Tensor:
         return self.population.readout.action_std[self.k]
 
+    @property
+    def episode_steps(self) -> torch.Tensor:
+        return self.env.episode_length_buf
+
     def begin(self, first_iteration: int, end_iteration: int):
         """Nothing: the population's iterations are the member's."""
 

@@ -63,6 +63,10 @@ class PpoLearner:
     def action_std(self) -> torch.Tensor:
         return self.actor.output_std
 
+    @property
+    def episode_steps(self) -> torch.Tensor:
+        return self.env.episode_length_buf
+
     def train_mode(self):
         self.alg.train_mode()
 

@@ -133,6 +133,10 @@ class SapgLearner:
     def action_std(self) -> torch.Tensor:
         return self.leader.action_std
 
+    @property
+    def episode_steps(self) -> torch.Tensor:
+        return self.leader.episode_steps
+
     def begin(self, first_iteration: int, end_iteration: int):
         """Nothing: every policy trains from the first iteration."""
 

@@ -221,7 +221,6 @@ class ShacLearner:
         self.q, self.qd = window.q[-1].detach(), window.qd[-1].detach()
         if done.any():
             self._starts(done)
-        self.env.episode_length_buf = self.time_out_count  # the progress line's time into the running episodes
 
     def _set_learning_rates(self, it: int):
         """The settings' rates at iteration ``it`` (a resumed optimizer keeps its saved ones otherwise), decayed where
@@ -236,6 +235,10 @@ class ShacLearner:
     @property
     def action_std(self) -> torch.Tensor:
         return torch.full((self.env.num_actions,), self.settings.action_noise_std, device=self.device)
+
+    @property
+    def episode_steps(self) -> torch.Tensor:
+        return self.time_out_count
 
     def state_dict(self) -> dict:
         """The networks as rsl-rl's checkpoints hold them, and the learner's optimizers and target critic (under
