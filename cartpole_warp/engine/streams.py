@@ -79,6 +79,7 @@ class TorchGraph:
         self.graph: torch.cuda.CUDAGraph | None = None
         self.output = None
         self._warmed_up = False
+        self._inputs = None
 
     def __call__(self, work: Callable[[], object]):
         if self.graph is None:
@@ -95,6 +96,14 @@ class TorchGraph:
             self.graph = graph
         self.graph.replay()
         return self.output
+
+    def with_inputs(self, inputs, work: Callable[[object], object]):
+        """``work(inputs)`` as ``__call__`` runs it, on a copy of ``inputs`` (a tensor or a TensorDict) in a buffer of
+        the graph's own, into which each call copies them: a captured graph reads its inputs where it was captured."""
+        if self._inputs is None:
+            self._inputs = inputs.clone()
+        self._inputs.copy_(inputs)
+        return self(lambda: work(self._inputs))
 
     def release(self):
         """Free the captured graph (the next call captures it again). A graph holding NCCL collectives must be freed

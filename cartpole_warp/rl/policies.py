@@ -41,6 +41,11 @@ SYNC_FREE_PPO = "cartpole_warp.rl.learners.ppo.sync_free:SyncFreePPO"
 by path: the networks' layer does not import the learners'."""
 
 
+def gaussian_sample(mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+    """Gaussian actions as mean + std * N(0, 1), drawn without reading anything back from the device."""
+    return mean + std * torch.randn_like(mean)
+
+
 class SyncFreeGaussian(GaussianDistribution):
     """rsl-rl's ``GaussianDistribution`` sampled as mean + std * N(0, 1). ``torch.normal(mean, std)``, which rsl-rl's
     ``sample`` calls, first reads ``std.min() >= 0`` back to the host: a device sync at every policy step, and an error
@@ -48,8 +53,7 @@ class SyncFreeGaussian(GaussianDistribution):
 
     def sample(self) -> torch.Tensor:
         with torch.no_grad():
-            mean, std = self.mean, self.std
-            return mean + std * torch.randn_like(mean)
+            return gaussian_sample(self.mean, self.std)
 
 
 class NullLogWriter(LogWriter):

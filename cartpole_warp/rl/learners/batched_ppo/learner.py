@@ -117,7 +117,6 @@ class PopulationLearner:
             mirror=self._mirror if mirrored else None, **settings)
         graphed = cfgs[0].agent.cuda_graph and torch.device(self.device).type == "cuda"
         self._graphs = (TorchGraph(self.device), TorchGraph(self.device)) if graphed else None
-        self._rollout_input: TensorDict | None = None
         self.readout: Readout | None = None
         """The latest iteration's figures (``read``)."""
 
@@ -131,13 +130,7 @@ class PopulationLearner:
         """One iteration of every member: the last observations and the (K,) losses out."""
         self.clock.mark(0)
         with torch.inference_mode():
-            if self._graphs is None:
-                obs = self._rollout(obs)
-            else:
-                if self._rollout_input is None:
-                    self._rollout_input = obs.clone()
-                self._rollout_input.copy_(obs)
-                obs = self._graphs[0](lambda: self._rollout(self._rollout_input))
+            obs = self._rollout(obs) if self._graphs is None else self._graphs[0].with_inputs(obs, self._rollout)
         self.clock.mark(1)
         losses = self.ppo.update() if self._graphs is None else self._graphs[1](self.ppo.update)
         self.clock.mark(2)

@@ -27,6 +27,9 @@ from rsl_rl.models import MLPModel
 from rsl_rl.modules.distribution import GaussianDistribution, HeteroscedasticGaussianDistribution
 from torch import nn
 
+from ...policies import gaussian_sample
+from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
+
 Mirror = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """Symmetry augmentation of flat batches: (obs (B, O), actions (B, A)) -> (obs (C*B, O), actions (C*B, A)), the
 originals first, then C-1 mirrored copies (rsl-rl's ``data_augmentation_func`` convention, without ``env``)."""
@@ -313,7 +316,7 @@ class PopulationPPO:
         """Sample actions (K, N, A) for observations (K, N, O) (mean + std * N(0, 1), as ``SyncFreeGaussian``) and
         store the transition."""
         mean, std, values = self.model(obs)
-        actions = mean + std * torch.randn_like(mean)
+        actions = gaussian_sample(mean, std)
         step = self.step
         self.observations[:, step] = obs
         self.actions[:, step] = actions
@@ -412,27 +415,16 @@ class PopulationPPO:
             with torch.no_grad():
                 self._adapt_learning_rate(gaussian_kl(old_mean, old_std, mean[:, :size], std).mean(1))
         clip = (self.clip_param if members is None else self.clip_param[members])[:, None]
-        ratio = torch.exp(log_prob - old_log_prob)
-        surrogate = torch.max(-advantages * ratio, -advantages * ratio.clamp(1.0 - clip, 1.0 + clip))
+        surrogate = clipped_surrogate(torch.exp(log_prob - old_log_prob), advantages, clip)
         if dual_clip is not None:
             surrogate = torch.where(advantages < 0, torch.min(surrogate, -dual_clip * advantages), surrogate)
-        surrogate_loss = surrogate.mean(1)
-        if self.use_clipped_value_loss:
-            value_clipped = old_values + (values - old_values).clamp(-clip, clip)
-            value_loss = torch.max((values - returns).pow(2), (value_clipped - returns).pow(2)).mean(1)
-        else:
-            value_loss = (returns - values).pow(2).mean(1)
-        return surrogate_loss, value_loss, entropy
+        value_loss = value_error(values, old_values, returns, clip, self.use_clipped_value_loss).mean(1)
+        return surrogate.mean(1), value_loss, entropy
 
     def _adapt_learning_rate(self, kl_mean: torch.Tensor):
-        """rsl-rl's rule per active member: divide by 1.5 (not below 1e-5) above twice the target KL, multiply by 1.5
-        (not above 1e-2) below half of it (KL above 0)."""
-        lr, desired_kl = self.learning_rate, self.desired_kl
-        smaller = torch.clamp(lr / 1.5, min=1e-5)
-        larger = torch.clamp(lr * 1.5, max=1e-2)
-        adapted = torch.where(kl_mean > desired_kl * 2.0, smaller,
-                              torch.where((kl_mean < desired_kl / 2.0) & (kl_mean > 0.0), larger, lr))
-        lr.copy_(torch.where(self.active, adapted, lr))
+        """rsl-rl's rule (``ppo_rules.adaptive_kl_rate``) per active member."""
+        lr = self.learning_rate
+        lr.copy_(torch.where(self.active, adaptive_kl_rate(lr, kl_mean, self.desired_kl), lr))
 
     @torch.no_grad()
     def _clip_and_step(self, grad: torch.Tensor):

@@ -46,7 +46,6 @@ class PpoLearner:
         graphable = (cfg.agent.cuda_graph and isinstance(self.alg, SyncFreePPO) and cfg.console != "rsl_rl"
                      and torch.device(self.device).type == "cuda")
         self._rollout_graph = TorchGraph(self.device) if graphable else None
-        self._rollout_input: TensorDict | None = None
         self.on_step: Callable[[torch.Tensor, torch.Tensor, dict], None] | None = None
         """Called with each step's rewards, dones and extras (rsl-rl's console: its logger's ``process_env_step``);
         a rollout with it is never captured."""
@@ -106,10 +105,7 @@ class PpoLearner:
         """``_rollout``, captured and replayed where the rollout is graphed."""
         if self._rollout_graph is None:
             return self._rollout(obs)
-        if self._rollout_input is None:
-            self._rollout_input = obs.clone()
-        self._rollout_input.copy_(obs)
-        return self._rollout_graph(lambda: self._rollout(self._rollout_input))
+        return self._rollout_graph.with_inputs(obs, self._rollout)
 
     def state_dict(self) -> dict:
         """rsl-rl's networks and optimizer."""

@@ -25,6 +25,7 @@ from rsl_rl.utils.utils import reduce_gradients_in_buckets
 from torch import nn
 
 from ....engine.streams import TorchGraph
+from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
 
 
 class SyncFreePPO(PPO):
@@ -82,15 +83,11 @@ class SyncFreePPO(PPO):
             self._graph.release()
 
     def _adapt_learning_rate(self, kl_mean: torch.Tensor):
-        """rsl-rl's rule, on the device: divide by 1.5 above twice the target KL, multiply by 1.5 below half of it."""
+        """rsl-rl's rule (``ppo_rules.adaptive_kl_rate``) on the KL averaged over the processes."""
         if self.is_multi_gpu:
             torch.distributed.all_reduce(kl_mean, op=torch.distributed.ReduceOp.SUM)
             kl_mean /= self.gpu_world_size
-        lr = self._learning_rate
-        smaller = torch.clamp(lr / 1.5, min=1e-5)
-        larger = torch.clamp(lr * 1.5, max=1e-2)
-        lr.copy_(torch.where(kl_mean > self.desired_kl * 2.0, smaller,
-                             torch.where((kl_mean < self.desired_kl / 2.0) & (kl_mean > 0.0), larger, lr)))
+        self._learning_rate.copy_(adaptive_kl_rate(self._learning_rate, kl_mean, self.desired_kl))
 
     def update(self) -> dict[str, float]:
         """rsl-rl's ``PPO.update``: the same mini-batches, losses, learning-rate rule and gradient steps. With
@@ -167,14 +164,8 @@ class SyncFreePPO(PPO):
                         old_params, tuple(p[:size] for p in self.actor.output_distribution_params))
                     self._adapt_learning_rate(torch.mean(kl))
             ratio = torch.exp(log_prob - torch.squeeze(old_log_prob))
-            advantages = torch.squeeze(advantages)
-            clipped_ratio = torch.clamp(ratio, 1.0 - self.clip_param, 1.0 + self.clip_param)
-            surrogate_loss = torch.max(-advantages * ratio, -advantages * clipped_ratio).mean()
-            if self.use_clipped_value_loss:
-                value_clipped = old_values + (values - old_values).clamp(-self.clip_param, self.clip_param)
-                value_loss = torch.max((values - returns).pow(2), (value_clipped - returns).pow(2)).mean()
-            else:
-                value_loss = (returns - values).pow(2).mean()
+            surrogate_loss = clipped_surrogate(ratio, torch.squeeze(advantages), self.clip_param).mean()
+            value_loss = value_error(values, old_values, returns, self.clip_param, self.use_clipped_value_loss).mean()
             loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
         self.optimizer.zero_grad()
         loss.backward()
