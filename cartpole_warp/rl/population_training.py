@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import signal
 import statistics
 import time
 from pathlib import Path
@@ -29,7 +28,7 @@ from .population import PopulationEvaluation, check_population
 from .progress import format_duration
 from .runner import TaskRunner
 from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary, save_config
-from .training import bytes_per_env_by_place, finish_run
+from .training import Interrupts, bytes_per_env_by_place, finish_run
 
 
 def check_population_memory(cfg: TrainConfig, members: int, device: str):
@@ -104,29 +103,25 @@ class PopulationTraining:
         device = resolve_device(self.ranks.device(cfg.env.device, torch.cuda.device_count()))
         return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
 
-    def _on_signal(self, signum, frame):
-        if self.interrupted:
-            raise KeyboardInterrupt
-        self.interrupted = True
-        print(f"\n{self.prefix}stopping every member after this iteration and saving (Ctrl-C again aborts without "
-              "saving)", flush=True)
-
     def run(self) -> dict:
         """Train every member until its own stop (solved with ``stop_when_solved``, non-finite networks, Ctrl-C) or
         ``agent.max_iterations``; then each member's run folder is finished as a solo run's, and the population's
         table and ``population.json`` written (returned)."""
-        previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
+        def stop():
+            self.interrupted = True
+
+        with Interrupts(stop, lambda line: print(line.replace("\n", "\n" + self.prefix, 1), flush=True),
+                        "stopping every member") as interrupts:
             start = time.perf_counter()
-            self._loop()
+            try:
+                self._loop()
+            finally:
+                interrupts.finishing = True
+                self.learner.release_graphs()
             self.train_time_s = time.perf_counter() - start
-        finally:
-            self.learner.release_graphs()
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-        summaries = [finish_run(runner, self.run_dir / member.name, dict(self.timing_s), self.setup_time_s)
-                     for runner, member in zip(self.runners, self.members)]
-        return self._write(summaries)
+            summaries = [finish_run(runner, self.run_dir / member.name, dict(self.timing_s), self.setup_time_s)
+                         for runner, member in zip(self.runners, self.members)]
+            return self._write(summaries)
 
     def _loop(self):
         iterations = self.cfg.agent.max_iterations

@@ -12,6 +12,7 @@ import importlib.util
 import signal
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -74,6 +75,36 @@ def check_memory(cfg: TrainConfig, device: str):
                 f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of {steps} steps "
                 f"per env); {where} has {free / 1e9:,.1f} GB free: use at most "
                 f"~{free // need_per_env - evaluation_envs:,} envs (--num-envs) or fewer --agent.num-steps-per-env")
+
+
+class Interrupts:
+    """SIGINT and SIGTERM (which torchrun sends its processes) while a training runs, as a context: the first calls
+    ``stop`` (training ends after the iteration in progress, which is saved) and ``say``s ``stopping``; a second
+    aborts (KeyboardInterrupt, nothing saved); once ``finishing`` (training has ended, the run's files are being
+    written) a signal waits for them, saying so."""
+
+    def __init__(self, stop: Callable[[], None], say: Callable[[str], None], stopping: str):
+        self.stop, self.say, self.stopping = stop, say, stopping
+        self.count, self.finishing = 0, False
+        self._previous: dict = {}
+
+    def __enter__(self) -> Interrupts:
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _on_signal(self, signum, frame):
+        if self.finishing:  # the run's files are being written: they come first, and quickly
+            self.say("\nwriting the run's exports, curve and summary first")
+            return
+        self.count += 1
+        if self.count > 1:
+            raise KeyboardInterrupt
+        self.stop()
+        self.say(f"\n{self.stopping} after this iteration and saving (Ctrl-C again aborts without saving)")
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -185,9 +216,6 @@ class Training:
             if ranks.writes:
                 save_config(self.run_dir, cfg)
         self.setup_time_s = time.perf_counter() - start
-        self._interrupts = 0
-        self._finishing = False
-        """Training has ended and the run's files are being written (signals then wait)."""
 
     @property
     def solved_definition(self) -> str:
@@ -199,35 +227,23 @@ class Training:
         """The env's time limit in env steps."""
         return self.env.max_episode_length
 
-    def _on_signal(self, signum, frame):
-        if self._finishing:  # the run's files are being written: they come first, and quickly
-            if self.ranks.writes:
-                print("\nwriting the run's exports, curve and summary first", flush=True)
-            return
-        self._interrupts += 1
-        if self._interrupts > 1:
-            raise KeyboardInterrupt
-        self.runner.request_stop("interrupted")
-        if self.ranks.writes:
-            print("\nstopping after this iteration and saving (Ctrl-C again aborts without saving)", flush=True)
-
     def run(self) -> RunSummary | None:
         """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or SIGTERM, which torchrun sends its processes,
         or, with stop_when_solved, once solved); then export the policy play.py plays (``model_best.pt``'s where an
         evaluation ran, else the last), draw the learning curve and write ``summary.json``, and return it (None in
         the processes that do not write). A signal once training has ended waits until summary.json is written."""
-        previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
+        def say(line: str):
+            if self.ranks.writes:
+                print(line, flush=True)
+
+        with Interrupts(lambda: self.runner.request_stop("interrupted"), say, "stopping") as interrupts:
             trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
             try:
                 self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
             finally:
-                self._finishing = True
+                interrupts.finishing = True
                 self.runner.release_graphs()
             return self._finish(trained_before_s) if self.ranks.writes else None
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
 
     def _finish(self, trained_before_s: float) -> RunSummary:
         """The end of a run: exports, the learning curve, ``summary.json``."""
