@@ -161,7 +161,13 @@ def test_the_learner_once_called_apg_is_shac_by_its_old_name_its_old_flags_and_i
     assert "note: --agent.apg.gamma is now --agent.shac.gamma" in err
     saved = yaml.safe_load(yaml.safe_dump(
         {"task": "cartpole-balance", "agent": {"learner": "apg", "apg": {"gamma": 0.98}}}))
-    loaded = load_train_config(saved, "config.yaml").agent
+    with pytest.warns(DeprecationWarning, match="config.yaml: learner 'apg' is now 'shac'"):
+        loaded = load_train_config(saved, "config.yaml").agent
     assert loaded.learner == "shac" and loaded.shac == new.agent.shac
+    preset = tmp_path / "old.yaml"
+    preset.write_text(yaml.safe_dump(saved))
+    with pytest.warns(DeprecationWarning, match="old.yaml: learner 'apg' is now 'shac'"):
+        from_preset, _, _ = resolve(["--config", str(preset), "--log-dir", str(tmp_path)])
+    assert from_preset.agent.learner == "shac" and from_preset.agent.shac.gamma == 0.98
     with pytest.warns(DeprecationWarning, match="ApgConfig is now ShacConfig"):
         assert agent.ApgConfig is agent.ShacConfig

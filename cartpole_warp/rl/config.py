@@ -172,7 +172,7 @@ def load_train_config(data: dict, where: str) -> TrainConfig:
     """A saved TrainConfig (a run's ``config.yaml``) from its dict: the task it names picks the settings' class, and
     its defaults fill any field the file lacks (one written before the field existed)."""
     task = overrides_dict(data, f"{where}:").get("task", tasks.DEFAULT_TASK)
-    base, saved = train_config(task), with_current_learner_names(data)
+    base, saved = train_config(task), with_current_learner_names(data, where)
     return from_dict(TrainConfig[type(base.env.task)], merge(dataclasses.asdict(base), saved), where)
 
 

@@ -5,13 +5,14 @@ dict; the preset loader checks a preset's ``agent`` section against them, so an 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
 import pydantic
 
 from .config import NO_UNKNOWN_KEYS, Count, Flag, Fraction, Name, NonNegative, Positive
-from .deprecation import renamed
+from .deprecation import REMOVED_IN, renamed
 
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
 """rsl-rl's activation names (``rsl_rl.utils.resolve_nn_activation``)."""
@@ -239,18 +240,23 @@ class RunnerConfig:
     critic: ModelConfig = field(default_factory=ModelConfig)
 
 
-def with_current_learner_names(data: dict) -> dict:
-    """A config's dict (a saved run's ``config.yaml``) with an old learner name (``RENAMED_LEARNERS``) in
-    ``agent.learner`` and its old section as the new one's, until ``deprecation.REMOVED_IN``."""
+def with_current_learner_names(data: dict, where: str) -> dict:
+    """A config's dict (a preset, a saved run's ``config.yaml``: ``where``) with an old learner name
+    (``RENAMED_LEARNERS``) in ``agent.learner`` and its old section as the new one's, with a DeprecationWarning, until
+    ``deprecation.REMOVED_IN``."""
     agent = data.get("agent")
     if not isinstance(agent, dict):
         return data
     agent = dict(agent)
     for old, new in RENAMED_LEARNERS.items():
+        if agent.get("learner") != old and old not in agent:
+            continue
         if agent.get("learner") == old:
             agent["learner"] = new
         if old in agent:
             agent[new] = agent.pop(old)
+        warnings.warn(f"{where}: learner {old!r} is now {new!r} (agent.{old} is agent.{new}); the old name goes in "
+                      f"{REMOVED_IN}", DeprecationWarning, stacklevel=2)
     return {**data, "agent": agent}
 
 

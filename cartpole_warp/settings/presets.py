@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 import yaml
 
-from .agent import RunnerConfig
+from .agent import RunnerConfig, with_current_learner_names
 from .config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
@@ -116,7 +116,7 @@ def load_preset(preset: str, task: str | None = None, env_type: type | None = No
         data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as err:
         raise ConfigError(f"cannot parse {path}: {err}") from None
-    data = overrides_dict(data, f"{path}: expected a mapping at the top level;")
+    data = with_current_learner_names(overrides_dict(data, f"{path}: expected a mapping at the top level;"), str(path))
     raise_config_errors(f"preset {preset!r}", overrides_errors(data, env_type))
     require(task is None or data.get("task", task) == task,
             f"preset {preset!r} is for task {data.get('task')!r}, not {task!r}")
