@@ -9,8 +9,9 @@
 Tasks live in ``tasks/`` (one module each, found by the registry ``cartpole_warp.tasks``); the rest is machinery that
 knows no task, a folder per layer: ``settings/`` (the config schemas, presets and files), ``engine/`` (the stage, the
 batched env, its kernels, camera and randomization), ``evaluation/`` (episode statistics, policy rollouts,
-robustness), ``viz/`` (pictures), ``wrappers/`` (rsl-rl, gymnasium, SB3), ``rl/`` (training with rsl-rl) and
-``tools/`` (benchmarks); the programs (``train``, ``play``, ``warmup``, ``cli``) sit here.
+robustness), ``viz/`` (pictures), ``wrappers/`` (rsl-rl, gymnasium, SB3), ``rl/`` (training with rsl-rl, a folder
+per learner), ``identification/`` (physics fitted to recordings) and ``tools/`` (benchmarks); the programs
+(``train``, ``play``, ``warmup``, ``cli``) sit here.
 
 Importing the package registers every task's gymnasium ids (``cartpole_warp/Cartpole-v0``,
 ``cartpole_warp/CartpoleSwingup-v0``, ... one or more per task: ``cartpole_warp.wrappers.gymnasium.env_ids()`` lists

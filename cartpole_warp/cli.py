@@ -132,11 +132,24 @@ def expand_aliases(argv: list[str], aliases: dict[str, str]) -> list[str]:
 
 
 def renamed_flags(argv: list[str], renames: dict[str, str]) -> list[str]:
-    """``argv`` with each old spelling of a flag (``renames``: old -> new) written as the new one, and a line on stderr
-    naming both: the old spelling is taken until ``settings.deprecation.REMOVED_IN``."""
-    for old in {flag_name(arg) for arg in argv if arg.startswith("--")} & renames.keys():
-        print(f"note: {old} is now {renames[old]}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
-    return expand_aliases(argv, renames)
+    """``argv`` with each old spelling of a flag (``renames``: old -> new; an old name ending in '.' renames every
+    flag under it, ``--agent.apg.`` -> ``--agent.shac.``) written as the new one, and a line on stderr naming both:
+    the old spelling is taken until ``settings.deprecation.REMOVED_IN``."""
+
+    def new_name(flag: str) -> str | None:
+        if flag in renames:
+            return renames[flag]
+        prefix = next((old for old in renames if old.endswith(".") and flag.startswith(old)), None)
+        return None if prefix is None else renames[prefix] + flag[len(prefix):]
+
+    out = []
+    for arg in argv:
+        _, equals, value = arg.partition("=")
+        new = new_name(flag_name(arg)) if arg.startswith("--") else None
+        if new is not None:
+            print(f"note: {flag_name(arg)} is now {new}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
+        out.append(arg if new is None else f"{new}{equals}{value}")
+    return out
 
 
 def renamed_values(argv: list[str], flags: tuple[str, ...], renames: dict[str, str]) -> list[str]:

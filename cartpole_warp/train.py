@@ -14,7 +14,6 @@ summary.json. Ctrl-C stops after the current iteration and saves. Also installed
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import gc
 import math
@@ -56,7 +55,7 @@ from .rl.config import (
 from .rl.distributed import Ranks
 from .rl.learners import LEARNERS
 from .rl.runs import BEST_CHECKPOINT, RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
-from .settings.agent import RENAMED_LEARNERS, RunnerConfig
+from .settings.agent import RENAMED_LEARNERS
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable
 from .settings.presets import presets
@@ -119,12 +118,12 @@ ALIASES = ENV_ALIASES | {"--max-iterations": "--agent.max-iterations", "--run-na
                          "--logger": "--agent.logger", "--learner": "--agent.learner",
                          "--seeds": "--population.seeds"}
 """train.py's short flags."""
-RENAMED_FLAGS = {"--algorithm": "--learner"} | {
-    f"--agent.{old}.{field.name.replace('_', '-')}": f"--agent.{new}.{field.name.replace('_', '-')}"
-    for old, new in RENAMED_LEARNERS.items() for field in dataclasses.fields(getattr(RunnerConfig(), new))}
+RENAMED_FLAGS = {"--algorithm": "--learner"} | {f"--agent.{old}.": f"--agent.{new}." for old, new in
+                                                 RENAMED_LEARNERS.items()}
 """Old spellings still taken, with a warning, until ``settings.deprecation.REMOVED_IN`` (``--algorithm`` named the
 learner while ``agent.algorithm`` is PPO's section; a renamed learner's section, ``--agent.apg.*``)."""
 LEARNER_FLAGS = ("--learner", "--agent.learner")
+"""The flags that name the learner, whose old names (``settings.agent.RENAMED_LEARNERS``) are taken as the new."""
 
 
 def task_list() -> str:
@@ -315,7 +314,8 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
               f"(its {other} settings differ; a flag changes either)", flush=True)
     if checkpoint is None and (chosen := learner_settings(training.cfg)):
         settings = ", ".join(f"{name} {value}" for name, value in chosen.items())
-        print(f"with --learner {training.cfg.agent.learner} the task's settings: {settings} (a flag changes any)",
+        print(f"with --learner {training.cfg.agent.learner} its settings and the task's: {settings} (a flag changes "
+              "any)",
               flush=True)
     hooks = IterationHooks()
     if args.viewer == "viser":

@@ -4,6 +4,7 @@ package's face."""
 
 import importlib
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -161,13 +162,17 @@ def test_the_learner_once_called_apg_is_shac_by_its_old_name_its_old_flags_and_i
     assert "note: --agent.apg.gamma is now --agent.shac.gamma" in err
     saved = yaml.safe_load(yaml.safe_dump(
         {"task": "cartpole-balance", "agent": {"learner": "apg", "apg": {"gamma": 0.98}}}))
-    with pytest.warns(DeprecationWarning, match="config.yaml: learner 'apg' is now 'shac'"):
+    with pytest.warns(FutureWarning, match="config.yaml: learner 'apg' is now 'shac'"):
         loaded = load_train_config(saved, "config.yaml").agent
     assert loaded.learner == "shac" and loaded.shac == new.agent.shac
     preset = tmp_path / "old.yaml"
     preset.write_text(yaml.safe_dump(saved))
-    with pytest.warns(DeprecationWarning, match="old.yaml: learner 'apg' is now 'shac'"):
+    with pytest.warns(FutureWarning, match="old.yaml: learner 'apg' is now 'shac'"):
         from_preset, _, _ = resolve(["--config", str(preset), "--log-dir", str(tmp_path)])
     assert from_preset.agent.learner == "shac" and from_preset.agent.shac.gamma == 0.98
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a PPO run's config.yaml of those releases: its apg section, silently
+        ppo = load_train_config({"task": "cartpole-balance", "agent": {"apg": {"gamma": 0.98}}}, "config.yaml")
+    assert ppo.agent.learner == "ppo" and ppo.agent.shac.gamma == 0.98
     with pytest.warns(DeprecationWarning, match="ApgConfig is now ShacConfig"):
         assert agent.ApgConfig is agent.ShacConfig

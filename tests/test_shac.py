@@ -55,7 +55,8 @@ def test_the_learner_chooses_its_own_settings_and_says_so(tmp_path):
     result = call_main("train", "--learner", "shac", "--num-envs", "8", "--max-iterations", "1", "--device", "cpu",
                        "--logger", "none", "--log-dir", tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "with --learner shac the task's settings: env.num_envs 8, agent.num_steps_per_env 32" in result.stdout
+    assert ("with --learner shac its settings and the task's: env.num_envs 8, agent.num_steps_per_env 32"
+            in result.stdout)
 
 
 @pytest.mark.parametrize(("flags", "message"), [

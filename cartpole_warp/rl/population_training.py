@@ -110,8 +110,10 @@ class PopulationTraining:
         def stop():
             self.interrupted = True
 
-        with Interrupts(stop, lambda line: print(line.replace("\n", "\n" + self.prefix, 1), flush=True),
-                        "stopping every member") as interrupts:
+        def say(line: str):  # on a line of its own, after the terminal's ^C
+            print(f"\n{self.prefix}{line}", flush=True)
+
+        with Interrupts(stop, say, "stopping every member") as interrupts:
             start = time.perf_counter()
             try:
                 self._loop()

@@ -79,7 +79,7 @@ def check_memory(cfg: TrainConfig, device: str):
 
 class Interrupts:
     """SIGINT and SIGTERM (which torchrun sends its processes) while a training runs, as a context: the first calls
-    ``stop`` (training ends after the iteration in progress, which is saved) and ``say``s ``stopping``; a second
+    ``stop`` (training ends after the iteration in progress, which is saved) and ``say``s so; a second
     aborts (KeyboardInterrupt, nothing saved); once ``finishing`` (training has ended, the run's files are being
     written) a signal waits for them, saying so."""
 
@@ -98,13 +98,13 @@ class Interrupts:
 
     def _on_signal(self, signum, frame):
         if self.finishing:  # the run's files are being written: they come first, and quickly
-            self.say("\nwriting the run's exports, curve and summary first")
+            self.say("writing the run's exports, curve and summary first")
             return
         self.count += 1
         if self.count > 1:
             raise KeyboardInterrupt
         self.stop()
-        self.say(f"\n{self.stopping} after this iteration and saving (Ctrl-C again aborts without saving)")
+        self.say(f"{self.stopping} after this iteration and saving (Ctrl-C again aborts without saving)")
 
 
 def median_of(history: list[dict], key: str) -> float | None:
@@ -232,9 +232,9 @@ class Training:
         or, with stop_when_solved, once solved); then export the policy play.py plays (``model_best.pt``'s where an
         evaluation ran, else the last), draw the learning curve and write ``summary.json``, and return it (None in
         the processes that do not write). A signal once training has ended waits until summary.json is written."""
-        def say(line: str):
+        def say(line: str):  # on a line of its own, after the terminal's ^C
             if self.ranks.writes:
-                print(line, flush=True)
+                print(f"\n{line}", flush=True)
 
         with Interrupts(lambda: self.runner.request_stop("interrupted"), say, "stopping") as interrupts:
             trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes

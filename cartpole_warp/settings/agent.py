@@ -242,21 +242,21 @@ class RunnerConfig:
 
 def with_current_learner_names(data: dict, where: str) -> dict:
     """A config's dict (a preset, a saved run's ``config.yaml``: ``where``) with an old learner name
-    (``RENAMED_LEARNERS``) in ``agent.learner`` and its old section as the new one's, with a DeprecationWarning, until
-    ``deprecation.REMOVED_IN``."""
+    (``RENAMED_LEARNERS``) in ``agent.learner`` and its old section as the new one's, until
+    ``deprecation.REMOVED_IN``. A FutureWarning (shown by default: the user wrote or chose the file) names a learner
+    asked for by its old name; the old section alone, which every config.yaml of those releases holds, is renamed
+    silently."""
     agent = data.get("agent")
     if not isinstance(agent, dict):
         return data
     agent = dict(agent)
     for old, new in RENAMED_LEARNERS.items():
-        if agent.get("learner") != old and old not in agent:
-            continue
         if agent.get("learner") == old:
             agent["learner"] = new
+            warnings.warn(f"{where}: learner {old!r} is now {new!r}; the old name goes in {REMOVED_IN}", FutureWarning,
+                          stacklevel=2)
         if old in agent:
             agent[new] = agent.pop(old)
-        warnings.warn(f"{where}: learner {old!r} is now {new!r} (agent.{old} is agent.{new}); the old name goes in "
-                      f"{REMOVED_IN}", DeprecationWarning, stacklevel=2)
     return {**data, "agent": agent}
 
 

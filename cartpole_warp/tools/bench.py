@@ -24,7 +24,7 @@ import warp as wp
 
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
-from ..engine.runtime import GraphReplay, resolve_device
+from ..engine.runtime import GraphReplay, collection_paused, resolve_device
 from ..engine.scene import StageError
 from ..settings.config import Capture, ConfigError, EnvConfig, Solver, Switch, require
 from ..settings.presets import load_preset
@@ -52,7 +52,7 @@ def physics_rate(task: str, cfg: EnvConfig, min_seconds: float) -> float:
     env = tasks.get(task).env_class(cfg)
     graphs = []
     for shard in env.shards:
-        with wp.ScopedCapture(device=env.device) as capture:
+        with collection_paused(), wp.ScopedCapture(device=env.device) as capture:
             env.physics_step(shard)
         graphs.append(capture.graph)
     replay = GraphReplay(graphs)

@@ -27,6 +27,7 @@ import warp as wp
 from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
 from ..engine.env import BatchedEnv
+from ..engine.runtime import collection_paused
 from ..engine.scene import StageError
 from ..settings.config import ConfigError, Solver, Switch, require
 
@@ -102,7 +103,7 @@ def step_nodes(env: BatchedEnv, steps: int = 20) -> StepNodes:
     shard, device = env.shards[0], env.device
     with LaunchLog() as log:
         env.shard_step(shard)
-    with wp.ScopedCapture(device=device) as capture:
+    with collection_paused(), wp.ScopedCapture(device=device) as capture:
         env.shard_step(shard)
     wp.synchronize_device(device)
     start = time.perf_counter()

@@ -23,7 +23,7 @@ from ..settings.deprecation import moved_names
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, StageError):
-        method = sysid.__doc__.split("\n\n", 1)[1]  # the library's docstring after its first paragraph
+        method = (sysid.__doc__ or "").partition("\n\n")[2]  # the library's docstring after its first paragraph
         args = parse(sysid.SysidArgs, sysid.SysidArgs(), sys.argv[1:] if argv is None else argv, f"{__doc__}\n{method}")
         sysid.fit(args)
     return 0

@@ -27,6 +27,7 @@ from rsl_rl.models import MLPModel
 from rsl_rl.modules.distribution import GaussianDistribution, HeteroscedasticGaussianDistribution
 from torch import nn
 
+from ....settings.deprecation import renamed
 from ...policies import gaussian_sample
 from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
 
@@ -444,3 +445,7 @@ class PopulationPPO:
         bias_correction2_sqrt = (1 - beta2**steps).sqrt().float()
         denom = (self.exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(PPO_ADAM_EPS)
         self.model.params.sub_(step_size * (self.exp_avg / denom))
+
+
+__getattr__ = renamed(__name__, {"ADAM_BETAS": "PPO_ADAM_BETAS", "ADAM_EPS": "PPO_ADAM_EPS"})
+"""The old names, until ``settings.deprecation.REMOVED_IN``."""

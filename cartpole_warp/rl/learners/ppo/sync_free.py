@@ -25,6 +25,7 @@ from rsl_rl.utils.utils import reduce_gradients_in_buckets
 from torch import nn
 
 from ....engine.streams import TorchGraph
+from ....settings.deprecation import moved_names
 from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
 
 
@@ -175,3 +176,7 @@ class SyncFreePPO(PPO):
         nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
         self.optimizer.step()
         self._sums += torch.stack((value_loss.detach(), surrogate_loss.detach(), entropy.detach()))
+
+
+__getattr__ = moved_names(__name__, "cartpole_warp.rl.policies")
+"""``SyncFreeGaussian``, which lived here, until ``settings.deprecation.REMOVED_IN``."""

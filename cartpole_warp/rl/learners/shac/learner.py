@@ -26,6 +26,7 @@ from ....engine.streams import PhaseClock
 from ....evaluation.statistics import EpisodeStats
 from ....gradients.rollout import DifferentiableRollout, Trajectory
 from ....settings.config import ConfigError, EnvConfig, refuse_present
+from ....settings.deprecation import renamed
 from ....wrappers.rsl_rl import RslRlVecEnv
 from ...config import TrainConfig
 from ...distributed import Ranks
@@ -263,3 +264,8 @@ class ShacLearner:
             self.target_critic.load_state_dict(state["target_critic"])
         else:
             self.target_critic.load_state_dict(self.critic.state_dict())
+
+
+__getattr__ = renamed(__name__, {"ApgLearner": "ShacLearner", "check_apg": "check_shac",
+                                 "ADAM_BETAS": "SHAC_ADAM_BETAS"})
+"""The names of the learner once called apg, until ``settings.deprecation.REMOVED_IN``."""
