@@ -176,3 +176,22 @@ def test_the_learner_once_called_apg_is_shac_by_its_old_name_its_old_flags_and_i
     assert ppo.agent.learner == "ppo" and ppo.agent.shac.gamma == 0.98
     with pytest.warns(DeprecationWarning, match="ApgConfig is now ShacConfig"):
         assert agent.ApgConfig is agent.ShacConfig
+
+
+def test_a_task_naming_a_learner_by_its_old_name_gets_it_and_one_naming_no_learner_is_refused(monkeypatch):
+    """``Task.learner_defaults`` keyed ``apg`` (the learner's name before ``shac``) still applies, with a warning,
+    until ``REMOVED_IN``; a key that names no learner is refused when the task registers, not ignored."""
+    import dataclasses
+
+    from cartpole_warp import tasks
+    from cartpole_warp.settings.config import ConfigError
+
+    monkeypatch.setattr(tasks, "_TASKS", dict(tasks._TASKS))
+    base = tasks.get("cartpole-balance")
+    old = dataclasses.replace(base, name="an-old-task", learner_defaults={"apg": {"agent": {"max_iterations": 7}}})
+    with pytest.warns(DeprecationWarning, match=r"learner_defaults\['apg'\] is now \['shac'\]"):
+        registered = tasks.register(old)
+    assert registered.learner_defaults == {"shac": {"agent": {"max_iterations": 7}}}
+    assert tasks.get("an-old-task") is registered
+    with pytest.raises(ConfigError, match="learner_defaults names 'sac', no learner"):
+        tasks.register(dataclasses.replace(base, name="a-typo-task", learner_defaults={"sac": {}}))

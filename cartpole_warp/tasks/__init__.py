@@ -16,11 +16,15 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import pkgutil
+import warnings
 from dataclasses import dataclass, field
+from typing import get_args
 
 from ..engine.env import BatchedEnv
 from ..evaluation.statistics import METRICS, SolvedRule
-from ..settings.config import ConfigError, EnvConfig, from_dict, merge, overrides_dict, raise_config_errors
+from ..settings.agent import RENAMED_LEARNERS, Learner
+from ..settings.config import ConfigError, EnvConfig, from_dict, merge, overrides_dict, raise_config_errors, require
+from ..settings.deprecation import REMOVED_IN
 from ..settings.presets import load_preset, overrides_errors
 
 DEFAULT_TASK = "cartpole-balance"
@@ -73,8 +77,10 @@ _TASKS: dict[str, Task] = {}
 
 
 def register(task: Task) -> Task:
-    """Add ``task`` to the registry (a task module calls this once); ValueError if its name is taken or its
-    ``play_metric`` names no episode mean, ConfigError naming each unknown key or bad value of its ``defaults``."""
+    """Add ``task`` to the registry (a task module calls this once) and return it as registered (its learners by
+    their names: ``with_current_learners``); ValueError if its name is taken or its ``play_metric`` names no episode
+    mean, ConfigError naming each unknown key or bad value of its ``defaults``."""
+    task = with_current_learners(task)
     if task.play_metric not in METRICS:
         raise ValueError(f"task {task.name!r}: play_metric {task.play_metric!r} is not one of {', '.join(METRICS)}")
     if task.name in _TASKS and _TASKS[task.name] != task:
@@ -89,6 +95,21 @@ def register(task: Task) -> Task:
                             overrides_errors(defaults, EnvConfig[task.env_class.config_class]))
     _TASKS[task.name] = task
     return task
+
+
+def with_current_learners(task: Task) -> Task:
+    """``task`` with its ``learner_defaults`` keyed by the learners' names: an old name (``RENAMED_LEARNERS``) as the
+    new, with a DeprecationWarning, until ``settings.deprecation.REMOVED_IN``; ConfigError for a name no learner has."""
+    learners = {}
+    for name, defaults in task.learner_defaults.items():
+        if name in RENAMED_LEARNERS:
+            warnings.warn(f"task {task.name!r}: learner_defaults[{name!r}] is now [{RENAMED_LEARNERS[name]!r}]; the "
+                          f"old name goes in {REMOVED_IN}", DeprecationWarning, stacklevel=3)  # register's caller
+            name = RENAMED_LEARNERS[name]
+        require(name in get_args(Learner), f"task {task.name!r}: learner_defaults names {name!r}, no learner "
+                                           f"(the learners: {', '.join(get_args(Learner))})")
+        learners[name] = defaults
+    return task if learners == task.learner_defaults else dataclasses.replace(task, learner_defaults=learners)
 
 
 def _discover():
