@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     def rollout():
         nonlocal obs
         with torch.inference_mode():
-            obs = runner.learner._collect(obs)
+            obs = runner.learner.collect(obs)
 
     zeros = torch.zeros(env.num_envs, 1, device=device)
     rows = {"env.step alone": timed_ms(lambda: env.step(zeros), device, 50)}

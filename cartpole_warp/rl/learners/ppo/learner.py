@@ -81,7 +81,7 @@ class PpoLearner:
     def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
         self.clock.mark(0)
         with torch.inference_mode():
-            obs = self._collect(obs)
+            obs = self.collect(obs)
         self.clock.mark(1)
         losses = self.alg.update()
         self.clock.mark(2)
@@ -101,8 +101,9 @@ class PpoLearner:
         self.alg.compute_returns(obs)
         return obs
 
-    def _collect(self, obs: TensorDict) -> TensorDict:
-        """``_rollout``, captured and replayed where the rollout is graphed."""
+    def collect(self, obs: TensorDict) -> TensorDict:
+        """An iteration's experience (``_rollout``), captured and replayed where the rollout is graphed (also what
+        ``tools.timing`` times)."""
         if self._rollout_graph is None:
             return self._rollout(obs)
         return self._rollout_graph.with_inputs(obs, self._rollout)
