@@ -142,14 +142,11 @@ def renamed_flags(argv: list[str], renames: dict[str, str]) -> list[str]:
         prefix = next((old for old in renames if old.endswith(".") and flag.startswith(old)), None)
         return None if prefix is None else renames[prefix] + flag[len(prefix):]
 
-    out = []
-    for arg in argv:
-        _, equals, value = arg.partition("=")
-        new = new_name(flag_name(arg)) if arg.startswith("--") else None
-        if new is not None:
-            print(f"note: {flag_name(arg)} is now {new}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
-        out.append(arg if new is None else f"{new}{equals}{value}")
-    return out
+    typed = sorted({flag_name(arg) for arg in argv if arg.startswith("--")})
+    moves = {old: new for old in typed if (new := new_name(old)) is not None}
+    for old, new in moves.items():
+        print(f"note: {old} is now {new}; the old spelling goes in {REMOVED_IN}", file=sys.stderr)
+    return expand_aliases(argv, moves)
 
 
 def renamed_values(argv: list[str], flags: tuple[str, ...], renames: dict[str, str]) -> list[str]:

@@ -54,31 +54,21 @@ def test_the_root_holds_the_programs_and_the_face():
         "engine", "evaluation", "gradients", "identification", "rl", "settings", "tasks", "tools", "viz", "wrappers"}
 
 
-@pytest.mark.parametrize("name", ["load_policy", "NullLogWriter"])
-def test_the_policy_functions_that_left_the_runner_answer_from_rl_policies(monkeypatch, name):
-    runner = importlib.import_module("cartpole_warp.rl.runner")
-    policies = importlib.import_module("cartpole_warp.rl.policies")
-    monkeypatch.delitem(vars(runner), name, raising=False)  # a name an earlier lookup cached
-    with pytest.warns(DeprecationWarning, match=f"rl.runner.{name} is now cartpole_warp.rl.policies.{name}"):
-        assert getattr(runner, name) is getattr(policies, name)
-
-
-@pytest.mark.parametrize("name", ["PopulationLearner", "MemberLearner", "Member"])
-def test_the_batched_learners_parts_that_left_rl_population_answer_from_its_folder(monkeypatch, name):
-    population = importlib.import_module("cartpole_warp.rl.population")
-    learner = importlib.import_module("cartpole_warp.rl.learners.batched_ppo.learner")
-    monkeypatch.delitem(vars(population), name, raising=False)
-    with pytest.warns(DeprecationWarning, match=f"rl.population.{name} is now cartpole_warp.rl.learners.batched_ppo"):
-        assert getattr(population, name) is getattr(learner, name)
-
-
-@pytest.mark.parametrize("name", ["fit", "SysidArgs", "read_problem"])
-def test_the_sysid_library_that_left_its_program_answers_from_identification(monkeypatch, name):
-    program = importlib.import_module("cartpole_warp.tools.sysid")
-    library = importlib.import_module("cartpole_warp.identification.sysid")
-    monkeypatch.delitem(vars(program), name, raising=False)
-    with pytest.warns(DeprecationWarning, match=f"tools.sysid.{name} is now cartpole_warp.identification.sysid"):
-        assert getattr(program, name) is getattr(library, name)
+@pytest.mark.parametrize("old, new, name", [
+    *[("rl.runner", "rl.policies", name) for name in ("load_policy", "NullLogWriter")],
+    *[("rl.population", "rl.learners.batched_ppo.learner", name) for name in ("PopulationLearner", "MemberLearner",
+                                                                               "Member")],
+    *[("tools.sysid", "identification.sysid", name) for name in ("fit", "SysidArgs", "read_problem")],
+    ("rl.learners.ppo.sync_free", "rl.policies", "SyncFreeGaussian"),
+])
+def test_a_name_that_left_its_module_answers_there_from_its_new_one(monkeypatch, old, new, name):
+    """The policy functions that left the runner, the batched learner's parts that left rl.population, the sysid
+    library that left its program, the Gaussian that left the sync-free update."""
+    left = importlib.import_module(f"cartpole_warp.{old}")
+    moved = importlib.import_module(f"cartpole_warp.{new}")
+    monkeypatch.delitem(vars(left), name, raising=False)  # a name an earlier lookup cached
+    with pytest.warns(DeprecationWarning, match=f"{old}.{name} is now cartpole_warp.{new}.{name}"):
+        assert getattr(left, name) is getattr(moved, name)
 
 
 def test_the_gymnasium_envs_old_core_attribute_is_their_env():
@@ -112,6 +102,10 @@ def test_a_task_written_with_the_old_evaluate_name_gets_its_reward_and_end():
     ("evaluation.rollouts", "NO_LIMIT_STEPS", "STEPS_WITHOUT_TIME_LIMIT"),
     ("engine.randomization", "Physics", "PhysicalParams"), ("engine.streams", "TorchOrder", "StreamOrder"),
     ("engine.kernels", "kernel_params", "kernel_constants"), ("engine.kernels", "params_of", "constants_of"),
+    ("rl.learners.shac.learner", "ApgLearner", "ShacLearner"), ("rl.learners.shac.learner", "check_apg", "check_shac"),
+    ("rl.learners.shac.learner", "ADAM_BETAS", "SHAC_ADAM_BETAS"),
+    ("rl.learners.batched_ppo.update", "ADAM_BETAS", "PPO_ADAM_BETAS"),
+    ("rl.learners.batched_ppo.update", "ADAM_EPS", "PPO_ADAM_EPS"), ("settings.agent", "ApgConfig", "ShacConfig"),
 ])
 def test_the_renamed_engine_and_evaluation_names_answer_for_a_release(module, old, new):
     loaded = importlib.import_module(f"cartpole_warp.{module}")
@@ -151,7 +145,6 @@ def test_the_learner_once_called_apg_is_shac_by_its_old_name_its_old_flags_and_i
     import yaml
 
     from cartpole_warp.rl.config import load_train_config
-    from cartpole_warp.settings import agent
     from cartpole_warp.train import resolve
 
     old, _, _ = resolve(["--agent.learner", "apg", "--agent.apg.gamma", "0.98", "--log-dir", str(tmp_path)])
@@ -174,8 +167,6 @@ def test_the_learner_once_called_apg_is_shac_by_its_old_name_its_old_flags_and_i
         warnings.simplefilter("error")  # a PPO run's config.yaml of those releases: its apg section, silently
         ppo = load_train_config({"task": "cartpole-balance", "agent": {"apg": {"gamma": 0.98}}}, "config.yaml")
     assert ppo.agent.learner == "ppo" and ppo.agent.shac.gamma == 0.98
-    with pytest.warns(DeprecationWarning, match="ApgConfig is now ShacConfig"):
-        assert agent.ApgConfig is agent.ShacConfig
 
 
 def test_a_task_naming_a_learner_by_its_old_name_gets_it_and_one_naming_no_learner_is_refused(monkeypatch):
