@@ -40,7 +40,7 @@ from .cli import (
     renamed_values,
     with_default_value,
 )
-from .engine.runtime import NO_CUDA, resolve_device, timed
+from .engine.runtime import NO_CUDA, timed
 from .engine.scene import StageError
 from .rl.config import (
     TrainConfig,
@@ -54,7 +54,16 @@ from .rl.config import (
 )
 from .rl.distributed import Ranks
 from .rl.learners import LEARNERS
-from .rl.runs import BEST_CHECKPOINT, RunError, find_checkpoint, latest_checkpoint, latest_run, load_config, new_run_dir
+from .rl.runs import (
+    BEST_CHECKPOINT,
+    MEMBERS_FILE,
+    RunError,
+    find_checkpoint,
+    latest_checkpoint,
+    latest_run,
+    load_config,
+    new_run_dir,
+)
 from .settings.agent import RENAMED_LEARNERS
 from .settings.config import ConfigError, TaskT, require
 from .settings.files import unwritable
@@ -103,7 +112,7 @@ class TrainArgs(Generic[TaskT]):
 
 
 class IterationHooks(list):
-    """Several ``runner.on_iteration`` callbacks (the browser view, the clips), called in order, closed together."""
+    """Several ``on_iteration`` callbacks (the browser view, the clips), called in order, closed together."""
 
     def __call__(self, it: int, summary) -> None:
         for hook in self:
@@ -220,92 +229,62 @@ def main(argv: list[str] | None = None) -> int:
     with clean_errors(ConfigError, RunError, StageError):
         with timed(timing_s, "config"):
             cfg, run_dir, checkpoint, args = resolve_args(sys.argv[1:] if argv is None else argv)
-        population = args.population.seeds or args.population.vary
-        code = (train_population if population else train_one)(cfg, run_dir, checkpoint, args, timing_s)
+        code = train(cfg, run_dir, checkpoint, args, timing_s)
     if argv is None:
         gc.freeze()  # the interpreter's final collection of Newton's objects would delay the exit
     return code
 
 
-def train_one(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainArgs,
-              timing_s: dict[str, float]) -> int:
-    """One run in ``run_dir`` (over torchrun's processes, if any); 130 where interrupted."""
+def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainArgs,
+          timing_s: dict[str, float]) -> int:
+    """The training in ``run_dir`` (over torchrun's processes, if any): one run, or with ``--seeds`` /
+    ``--population.vary`` a population's (``rl.population``); 130 where interrupted."""
     ranks = Ranks.from_environment()
+    population = bool(args.population.seeds or args.population.vary)
+    if population:
+        require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
+        require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")
     if args.viewer == "viser":
         check_browser_viewer(args)
     with timed(timing_s, "imports"):
         import torch
 
-        from .rl.training import Training, check_memory
-
-    if not ranks.distributed:  # before the build
-        if cfg.env.device != "cpu" and not torch.cuda.is_available():
-            raise ConfigError(NO_CUDA.format(cfg.env.device))
-        check_memory(cfg, resolve_device(cfg.env.device))
-    if ranks.writes:
-        print(f"building {cfg.env.num_envs} envs on "
-              f"{f'{ranks.world_size} GPUs' if ranks.distributed else cfg.env.device}...", flush=True)
-    training, summary = None, None
-    try:
-        training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s)
-        if ranks.writes:
-            announce(training, args, run_dir, checkpoint)
-        summary = training.run()
-    finally:
-        if training is not None and training.runner.on_iteration is not None:
-            training.runner.on_iteration.close()
-        if torch.distributed.is_initialized():
-            torch.distributed.destroy_process_group()
-    if summary is None:
-        return 130 if training.runner.stop_reason == "interrupted" else 0
-    report(summary, run_dir, checkpoint)  # summary.json is written: a Ctrl-C now only cuts these lines short
-    total = process_age_s() if "start" in timing_s else None
-    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
-    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
-    return 130 if summary.status == "interrupted" else 0
-
-
-def train_population(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainArgs,
-                     timing_s: dict[str, float]) -> int:
-    """``--seeds``: the population's run in ``run_dir`` (``rl.population_training``); 130 where interrupted."""
-    require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
-    require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")
-    with timed(timing_s, "imports"):
-        import torch
-
         from .rl.population import members_of
-        from .rl.population_training import PopulationTraining
-        from .rl.runs import MEMBERS_FILE
-        from .rl.training import solved_definition
+        from .rl.training import Training
 
-    if cfg.env.device != "cpu" and not torch.cuda.is_available():
+    if not ranks.distributed and cfg.env.device != "cpu" and not torch.cuda.is_available():  # torchrun: per process
         raise ConfigError(NO_CUDA.format(cfg.env.device))
-    members = members_of(args.population.seeds, args.population.vary)
-    ranks = Ranks.from_environment()
-    where = f"{ranks.world_size} processes" if ranks.distributed else cfg.env.device
-    if ranks.writes:
-        print(f"building {len(members)} members x {cfg.env.num_envs} envs on {where}...", flush=True)
-    try:
-        training = PopulationTraining(cfg, members, run_dir, timing_s, ranks)
-        run_dir = training.run_dir  # rank 0's, in a torchrun job
+    members = members_of(args.population.seeds, args.population.vary) if population else []
+
+    def building():
         if ranks.writes:
-            print(f"population folder: {run_dir}; ready in {training.setup_time_s:.1f} s; task {cfg.task}, solved = "
-                  f"{solved_definition(cfg)}", flush=True)
+            where = (f"{ranks.world_size} {'processes' if members else 'GPUs'}" if ranks.distributed
+                     else cfg.env.device)
+            print(f"building {f'{len(members)} members x ' if members else ''}{cfg.env.num_envs} envs on {where}...",
+                  flush=True)
+
+    training, result = None, None
+    try:
+        training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s, members=members,
+                            before_build=building)
+        if ranks.writes:
+            announce(training, args, training.run_dir, checkpoint)
         result = training.run()
     finally:
+        if training is not None and training.loop.on_iteration is not None:
+            training.loop.on_iteration.close()
         if torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
-    if ranks.writes:
-        print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "
-              f"trained {result['env_steps']:,} env steps in {result['train_time_s']:.1f} s "
-              f"({result['env_steps_per_s']:,} steps/s)\nwatch one: python play.py --headless --run "
-              f"{run_dir / members[0].name}")
+    if ranks.writes:  # summary.json is written: a Ctrl-C now only cuts these lines short
+        (report_population if members else report)(result, training.run_dir, checkpoint, timing_s)
     return 130 if training.interrupted else 0
 
 
 def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
-    """The lines of a built run (its folder, its set-up time, the solved rule), and the browser view where asked."""
-    print(f"run folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
+    """The lines of a built training (its folder, its set-up time, the solved rule), and the browser view where
+    asked."""
+    what = "population" if training.members else "run"
+    print(f"{what} folder: {run_dir}" + (f" (resumed from {checkpoint.name})" if checkpoint else ""))
     print(f"ready in {training.setup_time_s:.1f} s; task {training.cfg.task}, solved = {training.solved_definition}",
           flush=True)
     if checkpoint is None and (chosen := device_settings(training.cfg)):  # a resumed run keeps its saved settings
@@ -322,7 +301,7 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         from .viz.web import TrainingView
 
         view = TrainingView(training.env.env, args.viser.host, args.viser.port, args.viser.viewer_envs,
-                            args.viewer_interval_s, stopping=lambda: training.runner.stop_requested is not None,
+                            args.viewer_interval_s, stopping=lambda: training.loop.stop_requested is not None,
                             title=training.cfg.task, play_metric=training.task.play_metric)
         hooks.append(view)
         print(f"watch it at {view.url}", flush=True)
@@ -333,11 +312,11 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         print(f"clips of {args.video_length} env steps every {args.video_interval} iterations: "
               f"{run_dir / VIDEO_DIR}", flush=True)
     if hooks:
-        training.runner.on_iteration = hooks
+        training.loop.on_iteration = hooks
 
 
-def report(summary, run_dir: Path, checkpoint: Path | None):
-    """The end of a run: what it did, when it was solved, where its artefacts are."""
+def report(summary, run_dir: Path, checkpoint: Path | None, timing_s: dict[str, float]):
+    """The end of a run: what it did, when it was solved, where its artefacts are, where its seconds went."""
     resumed = (f" of training over all its processes, {summary.timing_s['training']:.1f} s in this one"
                if checkpoint is not None else "")
     done = (f"{summary.iterations} iterations, {summary.env_steps:,} env steps in {summary.train_time_s:.1f} s"
@@ -354,6 +333,18 @@ def report(summary, run_dir: Path, checkpoint: Path | None):
     best = [BEST_CHECKPOINT + " (play.py's)"] if (run_dir / BEST_CHECKPOINT).is_file() else []
     print(f"artefacts in {run_dir}: {', '.join([summary.checkpoint, *best])}, summary.json, learning_curve.png, "
           f"{', '.join(summary.exports)}\nwatch it: python play.py --headless --run {run_dir}")
+    total = process_age_s() if "start" in timing_s else None
+    phases = ", ".join(f"{phase} {seconds:.1f}" for phase, seconds in summary.timing_s.items())
+    print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
+
+
+def report_population(result: dict, run_dir: Path, checkpoint: Path | None, timing_s: dict[str, float]):
+    """The end of a population: its members' table, how many solved, its pace, and how to watch one."""
+    members = result["members"]
+    print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "
+          f"trained {result['env_steps']:,} env steps in {result['train_time_s']:.1f} s "
+          f"({result['env_steps_per_s']:,} steps/s)\nwatch one: python play.py --headless --run "
+          f"{run_dir / members[0]['member']}")
 
 
 if __name__ == "__main__":

@@ -105,10 +105,10 @@ def collect(runner):
     an iteration)."""
     obs = runner.env.get_observations()
     with torch.inference_mode():
-        for _ in range(runner.cfg["num_steps_per_env"]):
-            obs, rewards, dones, extras = runner.env.step(runner.alg.act(obs))
-            runner.alg.process_env_step(obs, rewards, dones, extras)
-        runner.alg.compute_returns(obs)
+        for _ in range(runner.rsl_rl_cfg["num_steps_per_env"]):
+            obs, rewards, dones, extras = runner.env.step(runner.learner.alg.act(obs))
+            runner.learner.alg.process_env_step(obs, rewards, dones, extras)
+        runner.learner.alg.compute_returns(obs)
     return obs
 
 

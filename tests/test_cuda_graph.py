@@ -8,7 +8,7 @@ import torch
 
 import cartpole_warp
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import TaskRunner
+from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 
@@ -18,7 +18,7 @@ def runner(device, cuda_graph, task="cartpole-balance", num_envs=4096, evaluated
     cfg.env.num_envs, cfg.env.device, cfg.agent.cuda_graph, cfg.stop_when_solved = num_envs, device, cuda_graph, True
     eval_env = cartpole_warp.make_env(num_envs=cfg.eval.num_envs, device=device, seed=0) if evaluated else None
     torch.manual_seed(0)
-    return TaskRunner(RslRlVecEnv(cartpole_warp.tasks.make(task, num_envs=num_envs, device=device, seed=0)), cfg,
+    return TrainingLoop(RslRlVecEnv(cartpole_warp.tasks.make(task, num_envs=num_envs, device=device, seed=0)), cfg,
                       None, eval_env)
 
 
@@ -36,18 +36,19 @@ def test_graphed_iterations_equal_launched_ones(cuda):
         torch.cuda.manual_seed(1)
         r.learn(4)
     assert graphed.learner._rollout_graph.graph is not None, "no graph was used"
-    assert graphed.alg._graph.graph is not None, "no graph was used"
-    assert launched.learner._rollout_graph is None and launched.alg._graph is None
+    assert graphed.learner.alg._graph.graph is not None, "no graph was used"
+    assert launched.learner._rollout_graph is None and launched.learner.alg._graph is None
     graphed.release_graphs()
-    assert graphed.learner._rollout_graph.graph is None and graphed.alg._graph.graph is None
+    assert graphed.learner._rollout_graph.graph is None and graphed.learner.alg._graph.graph is None
     for r in (graphed, launched):
         torch.manual_seed(2)
         torch.cuda.manual_seed(2)
         r.learn(3)
     assert graphed.learner._rollout_graph.graph is not None, "learn captures again after release_graphs"
-    for ours, theirs in zip(graphed.alg.actor.parameters(), launched.alg.actor.parameters(), strict=True):
+    for ours, theirs in zip(graphed.learner.alg.actor.parameters(), launched.learner.alg.actor.parameters(),
+                            strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-5)
-    for ours, theirs in zip(graphed.progress.history, launched.progress.history, strict=True):
+    for ours, theirs in zip(graphed.records[0].progress.history, launched.records[0].progress.history, strict=True):
         assert ours["episodes"] == theirs["episodes"]
         assert ours["mean_return"] == pytest.approx(theirs["mean_return"], rel=1e-4)
 
@@ -60,15 +61,16 @@ def test_a_graphed_pixel_update_equals_the_launched_one(cuda):
         torch.manual_seed(1)
         torch.cuda.manual_seed(1)
         r.learn(4)
-    assert graphed.alg._graph.graph is not None and launched.alg._graph is None
-    for ours, theirs in zip(graphed.alg.actor.parameters(), launched.alg.actor.parameters(), strict=True):
+    assert graphed.learner.alg._graph.graph is not None and launched.learner.alg._graph is None
+    for ours, theirs in zip(graphed.learner.alg.actor.parameters(), launched.learner.alg.actor.parameters(),
+                            strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-3, atol=1e-4)
 
 
 def test_graphed_training_solves(cuda):
     trained = runner(cuda, True, evaluated=True)
     trained.learn(150)
-    assert trained.stop_reason == "solved", trained.progress.history[-1]
+    assert trained.records[0].stop_reason == "solved", trained.records[0].progress.history[-1]
 
 
 def test_a_host_policy_runs_launched_and_a_device_one_captured(cuda):

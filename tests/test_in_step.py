@@ -101,17 +101,17 @@ def test_the_training_envs_step_the_same_with_the_evaluation_envs_beside_them(na
         cfg.eval.num_envs, cfg.eval.in_step, cfg.eval.min_interval, cfg.eval.max_interval = 8, in_step, 1, 1
         cfg.env.camera.width_px = cfg.env.camera.height_px = 36  # the smallest frames the pixel tasks' CNN takes
         training = Training(cfg, tmp_path / f"run{in_step}")
-        assert (training.runner.in_step is not None) == in_step and training.env.num_envs == 16
-        training.runner.learn(3)
-        runs.append(training.runner)
+        assert (training.loop.env.evaluation is not None) == in_step and training.env.num_envs == 16
+        training.loop.learn(3)
+        runs.append(training.loop)
     assert runs[1].evaluations.in_step.judged_policy is not None, \
         "evaluations began (the first after iteration 0: its envs restarted)"
-    storages = [runner.alg.storage for runner in runs]
+    storages = [runner.learner.alg.storage for runner in runs]
     for field in ("actions", "rewards", "dones"):
         assert torch.equal(*(getattr(storage, field) for storage in storages)), field
     for group in sorted(storages[0].observations.keys()):  # a TensorDict iterates over its rows
         assert torch.equal(*(storage.observations[group] for storage in storages)), group
-    policies = [runner.alg.get_policy().state_dict() for runner in runs]
+    policies = [runner.learner.alg.get_policy().state_dict() for runner in runs]
     for key, value in policies[0].items():
         assert torch.equal(value, policies[1][key]), key
 
@@ -124,21 +124,22 @@ def test_the_verdict_names_the_frozen_policy_keeps_it_as_best_and_a_hopeless_one
     training = make_training(tmp_path, min_interval=1, max_interval=1, in_step=True)
     set_policy_mean(training, BALANCING_GAINS, std=1.0)
     training_episodes(training, FAILING)
-    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    training.loop.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
     steps_per_iteration = training.cfg.agent.num_steps_per_env
     iterations = training.max_episode_length // steps_per_iteration
-    training.runner.learn(2 * iterations + 1)
-    verdicts = [h for h in training.runner.progress.history if "evaluation" in h]
+    training.loop.learn(2 * iterations + 1)
+    verdicts = [h for h in training.loop.records[0].progress.history if "evaluation" in h]
     assert [h["iteration"] for h in verdicts][0] == iterations
     solved = verdicts[0]["evaluation"]
     assert solved["policy_iteration"] == 0 and solved["time_limit_fraction"] == 1.0 and solved["cut_at_step"] is None
-    assert verdicts[0]["solved"] and training.runner.progress.solved_at["iterations"] == 1
+    assert verdicts[0]["solved"] and training.loop.records[0].progress.solved_at["iterations"] == 1
     line = next(line for line in capsys.readouterr().out.splitlines() if "SOLVED" in line)
     assert line.startswith(f"it  {iterations + 1}/") and "eval of it 1's policy time_limit_fraction 1.000" in line
-    assert training.runner.progress.best == {"iteration": 0, "solved": True, "time_limit_fraction": 1.0}
+    assert training.loop.records[0].progress.best == {"iteration": 0, "solved": True, "time_limit_fraction": 1.0}
     best = torch.load(training.run_dir / BEST_CHECKPOINT, weights_only=False)
     assert best["iter"] == 0 and best["infos"]["iterations"] == 1, "resuming from it continues the judged policy"
-    assert best["infos"]["best"] == training.runner.progress.best and best["infos"]["solved_at"]["iterations"] == 1
+    progress = training.loop.records[0].progress
+    assert best["infos"]["best"] == progress.best and best["infos"]["solved_at"]["iterations"] == 1
     assert torch.equal(best["actor_state_dict"]["mlp.0.weight"][0].cpu(), torch.tensor(BALANCING_GAINS))
     played = call_main("play", "--headless", "--run", training.run_dir, "--num-envs", training.cfg.eval.num_envs)
     assert played.returncode == 0, played.stderr

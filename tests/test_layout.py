@@ -56,8 +56,7 @@ def test_the_root_holds_the_programs_and_the_face():
 
 @pytest.mark.parametrize("old, new, name", [
     *[("rl.runner", "rl.policies", name) for name in ("load_policy", "NullLogWriter")],
-    *[("rl.population", "rl.learners.batched_ppo.learner", name) for name in ("PopulationLearner", "MemberLearner",
-                                                                               "Member")],
+    *[("rl.population", "rl.learners.batched_ppo.learner", name) for name in ("PopulationLearner", "Member")],
     *[("tools.sysid", "identification.sysid", name) for name in ("fit", "SysidArgs", "read_problem")],
     ("rl.learners.ppo.sync_free", "rl.policies", "SyncFreeGaussian"),
 ])
@@ -125,7 +124,7 @@ def test_the_old_names_go_in_the_release_they_name(tmp_path, capsys):
     pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
     assert Version(tomllib.loads(pyproject.read_text())["project"]["version"]) < Version(REMOVED_IN)
     with pytest.warns(DeprecationWarning, match=f"the old name goes in {REMOVED_IN}"):
-        assert importlib.import_module("cartpole_warp.rl.runner").CartpoleRunner.__name__ == "TaskRunner"
+        assert importlib.import_module("cartpole_warp.rl.runner").CartpoleRunner.__name__ == "TrainingLoop"
     from cartpole_warp.play import GRID_ALIASES
     from cartpole_warp.train import RENAMED_FLAGS, resolve
 

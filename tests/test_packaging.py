@@ -30,7 +30,7 @@ def test_wheel_runs_make_env_and_training_outside_the_repo(repo, tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for packaged in ("cartpole_warp/usd/cartpole.usda", "cartpole_warp/usd/cartpole_dmc.usda",
                      *(f"cartpole_warp/configs/{preset.name}" for preset in (repo / "configs").glob("*.yaml")),
-                     "cartpole_warp/rl/runner.py", "cartpole_warp/tasks/balance.py", "cartpole_warp/tasks/swingup.py",
+                     "cartpole_warp/rl/loop.py", "cartpole_warp/tasks/balance.py", "cartpole_warp/tasks/swingup.py",
                      "cartpole_warp/tools/bench.py"):
         assert packaged in names, packaged
 

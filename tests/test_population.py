@@ -17,9 +17,8 @@ from test_train_cli import REPO, only_run
 
 from cartpole_warp import tasks
 from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.rl.population import members_of
-from cartpole_warp.rl.population_training import PopulationTraining
-from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.rl.runs import (
     CONFIG_FILE,
     CURVE_FILE,
@@ -30,6 +29,7 @@ from cartpole_warp.rl.runs import (
     best_member,
     population_members,
 )
+from cartpole_warp.rl.training import Training
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
@@ -39,15 +39,15 @@ def population(tmp_path, seeds, vary=(), task=tasks.DEFAULT_TASK, num_envs=16, *
     cfg = train_config(task)
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger = num_envs, DEVICE, "none"
     cfg.agent = dataclasses.replace(cfg.agent, **agent)
-    return PopulationTraining(cfg, members_of(list(seeds), list(vary)), tmp_path)
+    return Training(cfg, tmp_path, members=members_of(list(seeds), list(vary)))
 
 
 def first_rollout(training):
     """The members' first iteration (no random episode starts): (observations (K, T, N, O), actions (K, T, N, A))
     as acted on, and the networks' parameters (K, P) after the update."""
     obs = training.env.get_observations()
-    training.learner.iteration(obs, 0)  # the update keeps the rollout's storage
-    ppo = training.learner.ppo
+    training.loop.learner.iteration(obs, 0)  # the update keeps the rollout's storage
+    ppo = training.loop.learner.ppo
     return ppo.observations.clone(), ppo.actions.clone(), ppo.model.params.detach().clone()
 
 
@@ -56,7 +56,7 @@ def test_each_members_block_starts_and_steps_as_a_solo_env_of_its_seed(tmp_path)
     observations, actions, _ = first_rollout(training)
     steps = observations.shape[1]
     for k, seed in enumerate([3, 7, 11]):
-        solo = training.cfg.task_spec.env_class(dataclasses.replace(training.cfgs[k].env, num_envs=16))
+        solo = training.cfg.task_spec.env_class(dataclasses.replace(training.loop.records[k].config.env, num_envs=16))
         seen = [solo.get_observations()]
         for t in range(steps - 1):
             seen.append(solo.step(actions[k, t])[0])
@@ -69,7 +69,7 @@ def test_changing_one_member_leaves_another_members_rollout_and_update_unchanged
     seeds, rate = ([0, 1, 5], "1e-3") if change == "seed" else ([0, 1, 2], "1e-3")
     other = population(tmp_path / "b", seeds, [f"agent.algorithm.learning-rate={rate}"])
     if change == "learning_rate":
-        other.learner.ppo.learning_rate[2] = 3e-4
+        other.loop.learner.ppo.learning_rate[2] = 3e-4
     changed = first_rollout(other)
     for k in (0, 1):
         assert all(torch.equal(a[k], b[k]) for a, b in zip(base, changed)), f"member {k}"
@@ -78,20 +78,20 @@ def test_changing_one_member_leaves_another_members_rollout_and_update_unchanged
 
 def test_a_member_gone_non_finite_ends_alone_and_the_others_go_on(tmp_path, capsys):
     training = population(tmp_path, [0, 1, 2], max_iterations=3, init_at_random_ep_len=False)
-    iteration = training.learner.iteration
+    iteration = training.loop.learner.iteration
 
     def poisoned(obs, it):
         result = iteration(obs, it)
         if it == 0:
-            training.learner.ppo.model.params.data[1] = float("nan")
+            training.loop.learner.ppo.model.params.data[1] = float("nan")
         return result
 
-    training.learner.iteration = poisoned
+    training.loop.learner.iteration = poisoned
     result = training.run()
     statuses = {row["member"]: (row["status"], row["iterations"]) for row in result["members"]}
     assert statuses == {"seed0": ("completed", 3), "seed1": ("non-finite", 0), "seed2": ("completed", 3)}
     assert "seed1: its networks went non-finite in iteration 1; it ends here" in capsys.readouterr().out
-    params = training.learner.ppo.model.params.detach()
+    params = training.loop.learner.ppo.model.params.detach()
     assert torch.isfinite(params[[0, 2]]).all()
 
 
@@ -231,16 +231,16 @@ def test_every_state_task_trains_a_population(tmp_path, task):
     result = training.run()
     assert [row["iterations"] for row in result["members"]] == [2, 2]
     assert all(row["status"] == "completed" for row in result["members"])
-    assert torch.isfinite(training.learner.ppo.model.params).all()
+    assert torch.isfinite(training.loop.learner.ppo.model.params).all()
 
 
 def test_a_task_that_evaluates_inside_the_step_on_a_gpu_trains_a_population_judged_on_envs_of_its_own(tmp_path):
     cfg = train_config("cart-three-pole-swingup")
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 8, DEVICE, "none", 1
     cfg.eval.in_step, cfg.eval.num_envs = True, 4  # the task's GPU default
-    training = PopulationTraining(cfg, members_of([0, 1]), tmp_path)
+    training = Training(cfg, tmp_path, members=members_of([0, 1]))
     assert training.env.num_envs == 16 and training.env.evaluation is None, "no evaluation envs in the training's env"
-    assert training.evaluation.env.num_envs == 8
+    assert training.loop.evaluations.own_envs.env.num_envs == 8
     assert [row["iterations"] for row in training.run()["members"]] == [1, 1]
     assert "in_step: false" in (tmp_path / "seed1" / "config.yaml").read_text()
 
@@ -254,10 +254,11 @@ def test_a_one_member_population_trains_as_rsl_rl_ppo_on_the_same_draws(tmp_path
     cfg = train_config(task)
     cfg.env.num_envs, cfg.agent.logger = 64, "none"
     cfg.agent.actor.obs_normalization = cfg.agent.critic.obs_normalization = True
-    training = PopulationTraining(cfg, members_of([5]), tmp_path)
+    training = Training(cfg, tmp_path, members=members_of([5]))
     torch.manual_seed(5)
-    solo = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(training.cfgs[0].env)), training.cfgs[0], None)
-    alg, population, ppo = solo.alg, training.learner, training.learner.ppo
+    member_cfg = training.loop.records[0].config
+    solo = TrainingLoop(RslRlVecEnv(cfg.task_spec.env_class(member_cfg.env)), member_cfg, None)
+    alg, population, ppo = solo.learner.alg, training.loop.learner, training.loop.learner.ppo
     obs, solo_obs = training.env.get_observations(), solo.env.get_observations()
     for i in range(3):
         torch.manual_seed(100 + i)
@@ -287,24 +288,24 @@ def test_each_member_trains_as_a_population_of_itself_alone_on_the_same_draws(tm
     observations and networks (to float tolerance)."""
     cfg = train_config("cartpole-swingup")
     cfg.env.num_envs, cfg.agent.logger = 32, "none"
-    together = PopulationTraining(cfg, members_of([3, 4, 5]), tmp_path / "together")
-    alone = [PopulationTraining(cfg, members_of([seed]), tmp_path / f"alone{seed}") for seed in (3, 4, 5)]
+    together = Training(cfg, tmp_path / "together", members=members_of([3, 4, 5]))
+    alone = [Training(cfg, tmp_path / f"alone{seed}", members=members_of([seed])) for seed in (3, 4, 5)]
     obs, alone_obs = together.env.get_observations(), [training.env.get_observations() for training in alone]
-    ppo, draw = together.learner.ppo, torch.randn_like
+    ppo, draw = together.loop.learner.ppo, torch.randn_like
     for _ in range(3):
         drawn = []
         monkeypatch.setattr(torch, "randn_like", lambda t, drawn=drawn: drawn.append(draw(t)) or drawn[-1])
         with torch.inference_mode():
-            obs = together.learner._rollout(obs)
+            obs = together.loop.learner._rollout(obs)
         permutation = torch.rand(3, ppo.num_envs * ppo.num_steps).argsort(dim=1)
         ppo.update(permutation=permutation)
         for k, training in enumerate(alone):
             rows = iter(drawn)
             monkeypatch.setattr(torch, "randn_like", lambda t, k=k, rows=rows: next(rows)[k:k + 1].clone())
             with torch.inference_mode():
-                alone_obs[k] = training.learner._rollout(alone_obs[k])
-            training.learner.ppo.update(permutation=permutation[k:k + 1])
-            torch.testing.assert_close(training.learner.ppo.observations[0], ppo.observations[k], rtol=1e-4,
+                alone_obs[k] = training.loop.learner._rollout(alone_obs[k])
+            training.loop.learner.ppo.update(permutation=permutation[k:k + 1])
+            torch.testing.assert_close(training.loop.learner.ppo.observations[0], ppo.observations[k], rtol=1e-4,
                                        atol=1e-4)
-            torch.testing.assert_close(training.learner.ppo.model.params[0], ppo.model.params[k], rtol=1e-4,
+            torch.testing.assert_close(training.loop.learner.ppo.model.params[0], ppo.model.params[k], rtol=1e-4,
                                        atol=1e-5)

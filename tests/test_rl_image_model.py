@@ -18,8 +18,8 @@ from cartpole_warp.rl import image_model
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.image_model import ImageModel, stack_blocks, to_blocks
 from cartpole_warp.rl.learners.ppo.sync_free import SyncFreePPO
+from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.rl.policies import to_rsl_rl
-from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 GROUPS = {"actor": ["policy"], "critic": ["critic"]}
@@ -77,7 +77,7 @@ def pixel_runner(precision):
     cfg.agent.actor.cnn.precision = precision
     cfg.env.num_envs = 16
     torch.manual_seed(0)
-    return TaskRunner(RslRlVecEnv(cartpole_warp.tasks.make("cartpole-balance-rgb", num_envs=16, seed=3)), cfg, None)
+    return TrainingLoop(RslRlVecEnv(cartpole_warp.tasks.make("cartpole-balance-rgb", num_envs=16, seed=3)), cfg, None)
 
 
 def test_the_bfloat16_update_lands_within_a_few_percent_of_the_float32_one(monkeypatch):
@@ -86,20 +86,21 @@ def test_the_bfloat16_update_lands_within_a_few_percent_of_the_float32_one(monke
     size, where a mis-scaled input or a lost gradient would differ by the whole step."""
     monkeypatch.setattr(image_model, "LOW_PRECISION_DEVICES", ("cuda", "cpu"))
     exact, low = pixel_runner("float32"), pixel_runner("bfloat16")
-    low.alg.actor.load_state_dict(exact.alg.actor.state_dict())
-    low.alg.critic.load_state_dict(exact.alg.critic.state_dict())
-    before = copy.deepcopy(exact.alg.actor.state_dict())
+    low.learner.alg.actor.load_state_dict(exact.learner.alg.actor.state_dict())
+    low.learner.alg.critic.load_state_dict(exact.learner.alg.critic.state_dict())
+    before = copy.deepcopy(exact.learner.alg.actor.state_dict())
     obs = collect(exact)
-    low.alg.storage = copy.deepcopy(exact.alg.storage)
+    low.learner.alg.storage = copy.deepcopy(exact.learner.alg.storage)
     with torch.inference_mode():
-        features = low.alg.actor.encode("policy", obs["policy"])
-        assert not torch.equal(features, exact.alg.actor.encode("policy", obs["policy"])), "bfloat16 was not used"
+        features = low.learner.alg.actor.encode("policy", obs["policy"])
+        unchanged = torch.equal(features, exact.learner.alg.actor.encode("policy", obs["policy"]))
+        assert not unchanged, "bfloat16 was not used"
     for runner in (exact, low):
         torch.manual_seed(2)
-        runner.alg.update()
+        runner.learner.alg.update()
     for name, start in before.items():
-        step_exact = exact.alg.actor.state_dict()[name] - start
-        step_low = low.alg.actor.state_dict()[name] - start
+        step_exact = exact.learner.alg.actor.state_dict()[name] - start
+        step_low = low.learner.alg.actor.state_dict()[name] - start
         if step_exact.abs().max() > 0:
             assert (step_low - step_exact).norm() <= 0.05 * step_exact.norm(), name
 

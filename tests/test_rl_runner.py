@@ -10,8 +10,8 @@ import cartpole_warp
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.distributed import SINGLE_PROCESS
 from cartpole_warp.rl.learners import learner_class
+from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.rl.progress import eta_s
-from cartpole_warp.rl.runner import TaskRunner
 from cartpole_warp.rl.runs import (
     RunError,
 )
@@ -24,9 +24,9 @@ def test_random_episode_starts_spread_time_outs_and_report_true_lengths(spread):
     cfg.env.num_envs, cfg.env.task.episode_length_s, cfg.agent.num_steps_per_env = 64, 0.1, 12
     torch.manual_seed(0)
     env = RslRlVecEnv(cartpole_warp.make_env(num_envs=64, seed=0, task={"episode_length_s": 0.1}))
-    runner = TaskRunner(env, cfg, None)
+    runner = TrainingLoop(env, cfg, None)
     runner.learn(1, init_at_random_ep_len=spread)
-    first = runner.progress.history[0]
+    first = runner.records[0].progress.history[0]
     assert first["time_limit_fraction"] > 0.95, "a 6-step limit ends nearly every episode by time"
     if spread:
         assert first["mean_episode_length"] < 5.5, "first episodes cut short by their random counters say so"
@@ -69,12 +69,12 @@ def test_play_loads_the_checkpoints_actor_alone_and_acts_as_the_runner(tmp_path)
     cfg.env.num_envs = 16
     env = RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0))
     torch.manual_seed(0)
-    runner = TaskRunner(env, cfg, None)
+    runner = TrainingLoop(env, cfg, None)
     runner.learn(2)
-    runner.save(str(tmp_path / "model.pt"))
+    runner.records[0].save(str(tmp_path / "model.pt"))
     obs = torch.randn(16, env.env.num_obs)
     with torch.inference_mode():
-        assert torch.equal(load_policy(env, cfg.agent, tmp_path / "model.pt")(obs), runner.policy()(obs))
+        assert torch.equal(load_policy(env, cfg.agent, tmp_path / "model.pt")(obs), runner.records[0].policy()(obs))
     cfg.agent.actor.hidden_dims = [8]
     with pytest.raises(RunError, match="does not match the configured networks"):
         load_policy(env, cfg.agent, tmp_path / "model.pt")
@@ -89,7 +89,7 @@ def test_an_iteration_in_which_no_episode_ended_says_how_long_they_have_run(caps
     cfg.env.num_envs, cfg.agent.num_steps_per_env, cfg.agent.init_at_random_ep_len = 16, 2, False
     env_cfg = learner_class(learner).env_config(cfg, cfg.env, SINGLE_PROCESS)
     torch.manual_seed(0)
-    runner = TaskRunner(RslRlVecEnv(cfg.task_spec.env_class(env_cfg)), cfg, None)
+    runner = TrainingLoop(RslRlVecEnv(cfg.task_spec.env_class(env_cfg)), cfg, None)
     runner.learn(2)
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
     dt = cfg.env.sim.env_dt
@@ -110,7 +110,7 @@ def test_a_run_that_will_take_hours_says_so_after_its_first_iteration(capsys):
     what makes it shorter."""
     cfg = train_config()
     cfg.env.num_envs, cfg.agent.num_steps_per_env = 16, 2
-    runner = TaskRunner(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
+    runner = TrainingLoop(RslRlVecEnv(cartpole_warp.make_env(num_envs=16, seed=0)), cfg, None)
     runner.learn(1)
     assert "note:" not in capsys.readouterr().out, "a short run has nothing to say"
     runner.request_stop()  # after the first iteration
@@ -128,13 +128,13 @@ def test_the_runner_is_one_loop_over_learners_found_by_name():
     import ast
     from pathlib import Path
 
-    from cartpole_warp.rl import runner
+    from cartpole_warp.rl import loop
     from cartpole_warp.rl.learners import LEARNERS, learner_class
 
-    assert len(Path(runner.__file__).read_text().splitlines()) <= 200
-    package = Path(runner.__file__).parent.parent
+    assert len(Path(loop.__file__).read_text().splitlines()) <= 200
+    package = Path(loop.__file__).parent.parent
     subclasses = [path.name for path in package.rglob("*.py") for node in ast.walk(ast.parse(path.read_text()))
-                  if isinstance(node, ast.ClassDef) and any(getattr(base, "id", None) == "TaskRunner"
+                  if isinstance(node, ast.ClassDef) and any(getattr(base, "id", None) == "TrainingLoop"
                                                             for base in node.bases)]
     assert subclasses == []
     assert {name: learner_class(name).__name__ for name in LEARNERS} == {"ppo": "PpoLearner", "shac": "ShacLearner",

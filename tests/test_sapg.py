@@ -210,7 +210,7 @@ def small_training(tmp_path):
 def test_the_best_policy_loaded_for_the_exports_is_the_leaders_and_the_followers_stay(tmp_path):
     """The run's end loads ``model_best.pt``'s actor (``load_cfg`` {"actor": True}) before it exports: the leader's
     rsl-rl actor, which the exports hold, is then that checkpoint's, its critic and the followers as they were."""
-    learner = small_training(tmp_path).runner.learner
+    learner = small_training(tmp_path).loop.learner
     obs, _ = learner.iteration(learner.population.env.get_observations(), 0)
     best = learner.state_dict()
     learner.iteration(obs, 1)
@@ -227,7 +227,7 @@ def test_the_best_policy_loaded_for_the_exports_is_the_leaders_and_the_followers
 def test_a_follower_gone_non_finite_starts_again_from_the_leader(tmp_path, monkeypatch, capsys):
     """A follower whose update left non-finite weights takes the leader's networks, optimiser state and learning rate
     before the next iteration could feed its samples to the leader; a line names it."""
-    learner = small_training(tmp_path).runner.learner
+    learner = small_training(tmp_path).loop.learner
     population, ppo = learner.population, learner.population.ppo
     iteration = population.iteration
 
@@ -249,7 +249,7 @@ def test_a_follower_gone_non_finite_starts_again_from_the_leader(tmp_path, monke
 def test_the_console_line_counts_the_leaders_envs(tmp_path, capsys):
     """The console line is the leader's: an iteration in which none of its episodes ended counts its block's 8 envs,
     not the run's 32."""
-    small_training(tmp_path).runner.learn(1)
+    small_training(tmp_path).loop.learn(1)
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("it ")]
     assert len(rows) == 1 and "no episode ended; 8 running," in rows[0], rows
 
@@ -298,8 +298,8 @@ def test_the_evaluation_inside_the_step_plays_the_leader_and_leaves_every_block_
         cfg = train_config(learner="sapg")
         cfg.env.num_envs, cfg.env.device, cfg.agent.num_steps_per_env, cfg.agent.logger = 8, DEVICE, 4, "none"
         cfg.eval.num_envs, cfg.eval.in_step, cfg.eval.min_interval, cfg.eval.max_interval = 8, in_step, 1, 1
-        runner = Training(cfg, tmp_path / f"run{in_step}").runner
-        assert (runner.in_step is not None) == in_step and runner.env.num_envs == 4 * 8
+        runner = Training(cfg, tmp_path / f"run{in_step}").loop
+        assert (runner.env.evaluation is not None) == in_step and runner.env.num_envs == 4 * 8
         runner.learn(3)
         populations.append(runner.learner.population)
     ppos = [population.ppo for population in populations]

@@ -39,7 +39,7 @@ def make_training(tmp_path, logger="none", **eval_settings) -> Training:
 def set_policy_mean(training: Training, gains: list[float], std: float):
     """The actor's mean action becomes ``gains @ obs`` exactly (ELU is the identity on the positive side, so the
     hidden layers carry ``gains @ obs + 10`` through unit 0), its Gaussian noise ``std``."""
-    actor = training.runner.alg.get_policy()
+    actor = training.loop.learner.alg.get_policy()
     with torch.no_grad():
         for param in actor.parameters():
             param.zero_()
@@ -54,32 +54,32 @@ def set_policy_mean(training: Training, gains: list[float], std: float):
 
 def training_episodes(training: Training, summary: EpisodeSummary):
     """The runner sees ``summary`` as every iteration's training episodes (what a noisy policy showed)."""
-    training.runner.episodes.pop = lambda all_processes=False: summary
+    training.loop.learner.episodes.pop = lambda all_processes=False: summary
 
 
 def test_training_episodes_that_meet_the_rule_do_not_make_a_failing_policy_solved(tmp_path):
     training = make_training(tmp_path, min_interval=1, max_interval=100)
     set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
     training_episodes(training, PASSING)
-    training.cfg.stop_when_solved = training.runner.train_cfg.stop_when_solved = True
-    training.runner.learn(3)
-    history = training.runner.progress.history
+    training.cfg.stop_when_solved = training.loop.records[0].config.stop_when_solved = True
+    training.loop.learn(3)
+    history = training.loop.records[0].progress.history
     assert [h["solved"] for h in history] == [False] * 3, "a push of 0 lets every pole fall"
     assert all(h["evaluation"]["time_limit_fraction"] == 0.0 for h in history), "each candidate was evaluated"
-    assert training.runner.progress.solved_at is None and training.runner.stop_reason is None
+    assert training.loop.records[0].progress.solved_at is None and training.loop.records[0].stop_reason is None
 
 
 def test_a_balancing_mean_is_solved_at_the_periodic_evaluation_and_training_stops_there_by_default(tmp_path):
     training = make_training(tmp_path, logger="tensorboard", min_interval=1, max_interval=3)
     set_policy_mean(training, BALANCING_GAINS, std=5.0)
     training_episodes(training, FAILING)
-    training.runner.train_cfg.stop_when_solved = train_config().stop_when_solved  # train.py's default: stop
-    training.runner.learn(10)
-    history = training.runner.progress.history
+    training.loop.records[0].config.stop_when_solved = train_config().stop_when_solved  # train.py's default: stop
+    training.loop.learn(10)
+    history = training.loop.records[0].progress.history
     assert ["evaluation" in h for h in history] == [False, False, True], "no candidate: the third iteration looks"
     assert history[-1]["evaluation"]["time_limit_fraction"] == 1.0 and history[-1]["solved"]
-    assert training.runner.stop_reason == "solved"
-    assert training.runner.progress.solved_at["iterations"] == 3
+    assert training.loop.records[0].stop_reason == "solved"
+    assert training.loop.records[0].progress.solved_at["iterations"] == 3
 
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -93,25 +93,25 @@ def test_the_evaluation_is_play_and_its_best_policy_is_what_play_loads(tmp_path)
     training = make_training(tmp_path, min_interval=1, max_interval=1)
     set_policy_mean(training, BALANCING_GAINS, std=1.0)
     training_episodes(training, FAILING)
-    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
-    training.runner.learn(2)
-    history, run = training.runner.progress.history, training.run_dir
+    training.loop.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    training.loop.learn(2)
+    history, run = training.loop.records[0].progress.history, training.run_dir
     assert [h["evaluation"]["time_limit_fraction"] for h in history] == [1.0, 0.0]
-    assert training.runner.progress.best == {"iteration": 0, "solved": True, "time_limit_fraction": 1.0}
+    assert training.loop.records[0].progress.best == {"iteration": 0, "solved": True, "time_limit_fraction": 1.0}
     assert play_checkpoint(run) == run / BEST_CHECKPOINT and list_checkpoints(run)[-1].name == "model_1.pt"
     best = torch.load(run / BEST_CHECKPOINT, weights_only=False)
     assert best["iter"] == 0
     assert torch.equal(best["actor_state_dict"]["mlp.0.weight"][0].cpu(), torch.tensor(BALANCING_GAINS))
 
     # what play.py plays: the run's seed, a fresh env of eval.num_envs envs, the best checkpoint's policy
-    from cartpole_warp.rl.runner import TaskRunner
+    from cartpole_warp.rl.loop import TrainingLoop
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
     cfg = training.cfg
     env = tasks.get(cfg.task).env_class(dataclasses.replace(cfg.env, num_envs=cfg.eval.num_envs))
-    player = TaskRunner(RslRlVecEnv(env), cfg, None)
-    player.load(str(play_checkpoint(run)), load_cfg={"actor": True})
-    played = evaluate(FirstEpisodesRun(env, player.policy()), cfg.env.seed)
+    player = TrainingLoop(RslRlVecEnv(env), cfg, None)
+    player.records[0].load(str(play_checkpoint(run)), load_cfg={"actor": True})
+    played = evaluate(FirstEpisodesRun(env, player.records[0].policy()), cfg.env.seed)
     evaluated = history[0]["evaluation"]
     assert (played.episodes, played.mean_return, played.time_limit_fraction) == (
         evaluated["episodes"], evaluated["mean_return"], evaluated["time_limit_fraction"]), "the same episodes"
@@ -155,10 +155,10 @@ def test_the_learning_curve_shows_the_whole_run_not_the_progress_saved_with_the_
     training.cfg.agent.max_iterations = 3
     set_policy_mean(training, BALANCING_GAINS, std=1.0)
     training_episodes(training, FAILING)
-    training.runner.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
+    training.loop.on_iteration = lambda it, stats: set_policy_mean(training, [0.0, 0.0, 0.0, 0.0], std=1.0)
     summary = training.run()
     assert summary.best["iteration"] == 0 and summary.iterations == 3
-    assert [h["iteration"] for h in training.runner.progress.history] == [0, 1, 2], "the curve's history"
+    assert [h["iteration"] for h in training.loop.records[0].progress.history] == [0, 1, 2], "the curve's history"
 
 
 @pytest.mark.parametrize("signals", [1, 2])
@@ -168,14 +168,14 @@ def test_a_signal_once_training_has_ended_waits_for_the_summary(tmp_path, signal
     reached."""
     training = make_training(tmp_path)
     training.cfg.agent.max_iterations = 1
-    export = training.runner.export
+    export = training.loop.records[0].export
 
     def export_under_signals(out_dir):
         for _ in range(signals):
             signal.raise_signal(signal.SIGINT)
         return export(out_dir)
 
-    training.runner.export = export_under_signals
+    training.loop.records[0].export = export_under_signals
     handler = signal.getsignal(signal.SIGINT)  # Python's, or pytest-xdist's worker's SIG_IGN
     summary = training.run()
     assert summary.status == "completed" and (training.run_dir / "summary.json").is_file()

@@ -17,7 +17,7 @@ from cartpole_warp import tasks
 from cartpole_warp.engine.kernels import END_NONE, TaskFunctions
 from cartpole_warp.evaluation.rollouts import rollout
 from cartpole_warp.rl.config import train_config
-from cartpole_warp.rl.runner import TaskRunner
+from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.settings.config import ConfigError, NonNegative
 from cartpole_warp.tasks.cart_base import CartpoleConfig, CartTaskEnv
 from cartpole_warp.wrappers.gymnasium import register_envs
@@ -152,10 +152,10 @@ def test_a_task_from_outside_the_package_builds_trains_plays_and_reaches_gymnasi
     cfg = train_config(hold_still)
     cfg.env.num_envs = 64
     assert cfg.experiment == hold_still and cfg.agent.max_iterations == 2
-    runner = TaskRunner(RslRlVecEnv(tasks.get(hold_still).env_class(cfg.env)), cfg.validate(), None)
+    runner = TrainingLoop(RslRlVecEnv(tasks.get(hold_still).env_class(cfg.env)), cfg.validate(), None)
     runner.learn(2)
-    assert runner.progress.iterations == 2
-    stats = rollout(env, runner.policy(), steps=60)
+    assert runner.records[0].progress.iterations == 2
+    stats = rollout(env, runner.records[0].policy(), steps=60)
     assert stats.episodes == 64 and stats.time_limit_fraction == 1.0
     assert 0.0 < stats.mean_reward_per_step <= 1.0 and math.isfinite(stats.mean_return)
 
@@ -178,7 +178,7 @@ def test_a_misspelt_play_metric_fails_at_registration():
 @pytest.mark.parametrize("module, old, new", [
     ("cartpole_warp", "CartpoleGymEnv", "TaskGymEnv"), ("cartpole_warp", "CartpoleVectorEnv", "TaskVectorEnv"),
     ("cartpole_warp.wrappers.gymnasium", "CartpoleGymEnv", "TaskGymEnv"),
-    ("cartpole_warp.rl.runner", "CartpoleRunner", "TaskRunner"),
+    ("cartpole_warp.rl.loop", "TaskRunner", "TrainingLoop"),
 ])
 def test_the_old_names_still_work_and_say_the_new_one(module, old, new):
     import importlib

@@ -122,15 +122,15 @@ def test_exported_onnx_runs_any_batch_in_onnxruntime_like_torchscript_and_the_ch
 
 def policy_actions(run, checkpoint: str, obs: np.ndarray) -> np.ndarray:
     """The deterministic actions of ``run``'s ``checkpoint`` for ``obs``, as play.py loads it."""
-    from cartpole_warp.rl.runner import TaskRunner
+    from cartpole_warp.rl.loop import TrainingLoop
     from cartpole_warp.rl.runs import load_config
     from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
     cfg = load_config(run)
-    runner = TaskRunner(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
-    runner.load(str(run / checkpoint), load_cfg={"actor": True})
+    runner = TrainingLoop(RslRlVecEnv(tasks.get(cfg.task).env_class(cfg.env)), cfg, None)
+    runner.records[0].load(str(run / checkpoint), load_cfg={"actor": True})
     with torch.inference_mode():
-        return runner.policy()(torch.from_numpy(obs)).numpy()
+        return runner.records[0].policy()(torch.from_numpy(obs)).numpy()
 
 
 def test_a_run_exports_its_best_policy_not_its_last(tmp_path):

@@ -102,7 +102,7 @@ def join_process_group(ranks: Ranks, device: str) -> dict | None:
 
 
 def join_population_group(ranks: Ranks, device: str):
-    """Join torchrun's process group for a population (``rl.population_training``) on ``device`` (this process's):
+    """Join torchrun's process group for a population (``rl.training``, with members) on ``device`` (this process's):
     gloo, on any device, since its members exchange no gradients, only their run folder's name at the start and their
     table rows at the end."""
     if not ranks.distributed:

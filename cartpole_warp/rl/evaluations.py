@@ -1,5 +1,7 @@
-"""A training run's evaluations (``Evaluations``): when one is due, where it runs (envs of its own, or inside the
-training's step: ``InStepJudge``), which policy it judges, its verdict (``Judged``) and the best checkpoint.
+"""A training's evaluations (``Evaluations``), for each of its members: when one is due, where it runs (envs of their
+own: ``OwnEnvsJudge``, K members' in one run; or inside the training's step: ``InStepJudge``), which policy it judges
+and its verdict (``Judged``); a run's record (``rl.record.RunRecord``) enters the verdicts and keeps the best
+checkpoint.
 
 Only an evaluation decides 'solved': the deterministic policy over whole episodes (``evaluation.evaluate``: play.py's
 episodes), due when an iteration's training episodes meet the task's rule (at most every ``eval.min_interval``
@@ -9,20 +11,17 @@ iterations) and at least every ``eval.max_interval``; the best so far is kept as
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 
 from ..engine.env import BatchedEnv
 from ..evaluation.in_step import InStepEvaluation
-from ..evaluation.rollouts import FirstEpisodesRun, evaluate
-from ..evaluation.statistics import EpisodeSummary
+from ..evaluation.rollouts import FirstEpisodes, FirstEpisodesRun, whole_episode_steps
+from ..evaluation.statistics import EpisodeSummary, SolvedRule
 from .config import TrainConfig
 from .learners import Learner
 from .policies import deterministic
-from .runs import BEST_CHECKPOINT, Progress
 
 
 @dataclass
@@ -65,91 +64,111 @@ class InStepJudge:
         return Judged(summary, *self.judged_policy) if summary is not None else None
 
 
-class Evaluations:
-    """The evaluations of ``learner``'s policy in a run of ``cfg``: on ``eval_env`` (envs of their own, seeded with
-    the run's seed), or inside the training's step where ``in_step`` is given; none where neither is."""
+class OwnEnvsJudge:
+    """The members' evaluations as one run on ``eval_env`` (K x M envs, M = ``eval.num_envs``), acting with the
+    learner's ``evaluation_policy`` (every member's in one batched forward where there are several): member k's block
+    starts as its own evaluation env does (one member: the env reset with its seed, the episodes ``play.py --headless``
+    plays of its run; several: each block restarted so, ``BatchedEnv.restart``); each block's whole first episodes are
+    member k's verdict (cut, as ``evaluation.evaluate`` cuts, once every judged member's failures keep the rule from
+    being met)."""
 
-    def __init__(self, cfg: TrainConfig, learner: Learner, eval_env: BatchedEnv | None = None,
-                 in_step: InStepEvaluation | None = None):
-        self.limits, self.seed, self.num_steps_per_env = cfg.eval, cfg.env.seed, cfg.agent.num_steps_per_env
-        self.rule, self.play_metric = cfg.task_spec.solved, cfg.task_spec.play_metric
-        self.learner, self.eval_env = learner, eval_env
-        self.in_step = InStepJudge(in_step, learner.actor) if in_step is not None else None
+    def __init__(self, eval_env: BatchedEnv, learner: Learner, seeds: list[int], rule: SolvedRule):
+        self.env, self.learner, self.seeds, self.rule = eval_env, learner, seeds, rule
+        self.num_members, self.num_envs = len(seeds), eval_env.num_envs // len(seeds)
+        self.steps = whole_episode_steps(eval_env)
         self._run: FirstEpisodesRun | None = None
-        self._given: EpisodeSummary | None = None
-        self.last_iteration = -1
-        """The iteration after which the latest evaluation began."""
+
+    def prepare(self):
+        """Make the run of the policy (on a GPU: capture its CUDA graph) if not made yet, so that the first evaluation
+        costs no capture."""
+        if self._run is None:
+            self.learner.eval_mode()
+            self._run = FirstEpisodesRun(self.env, self.learner.evaluation_policy())
+            self.learner.train_mode()
+
+    def _hopeless(self, members: list[int]) -> bool:
+        """Whether every one of ``members`` has failed too many episodes for the rule (one read from the device)."""
+        tally = self._run.tally
+        failed = (tally.finished & ~tally.reached).view(self.num_members, self.num_envs).sum(dim=1).tolist()
+        return all(self.rule.hopeless(failed[k], self.num_envs) for k in members)
+
+    def __call__(self, members: list[int]) -> dict[int, EpisodeSummary]:
+        """Each of ``members``' verdict on its policy as the learner stands now."""
+        self.prepare()
+        m, hopeless = self.num_envs, (lambda failed: self._hopeless(members))
+        self.learner.eval_mode()
+        try:
+            if self.num_members == 1:
+                result = self._run(self.steps, seed=self.seeds[0], hopeless=hopeless)
+            else:
+                for k in members:
+                    self.env.restart(k * m, (k + 1) * m, self.seeds[k])
+                result = self._run(self.steps, reset=False, hopeless=hopeless)
+        finally:
+            self.learner.train_mode()
+        cap = min(self.steps, self.env.max_episode_length)
+        return {k: FirstEpisodes(result.returns[k * m:(k + 1) * m], result.lengths[k * m:(k + 1) * m],
+                                 result.reached_limit[k * m:(k + 1) * m], result.cut_at_step,
+                                 None if result.ended is None else result.ended[k * m:(k + 1) * m]).summary(cap)
+                for k in members}
+
+
+class Evaluations:
+    """The evaluations of the policies of ``learner``'s members (seeded with ``seeds``, member k's with its own) in a
+    training of ``cfg``: on ``eval_env`` (envs of their own, ``OwnEnvsJudge``), or inside the training's step where
+    ``in_step`` is given (one member); none where neither is. Each member keeps its own schedule."""
+
+    def __init__(self, cfg: TrainConfig, learner: Learner, seeds: list[int], eval_env: BatchedEnv | None = None,
+                 in_step: InStepEvaluation | None = None):
+        self.limits, self.num_steps_per_env = cfg.eval, cfg.agent.num_steps_per_env
+        self.rule = cfg.task_spec.solved
+        self.learner = learner
+        self.own_envs = OwnEnvsJudge(eval_env, learner, seeds, self.rule) if eval_env is not None else None
+        self.in_step = None
+        if in_step is not None:
+            self.in_step = InStepJudge(in_step, learner.member_actor())
+            learner.train_mode()
+        self.last_iteration = [-1] * len(seeds)
+        """Per member, the iteration after which its latest evaluation began."""
 
     @property
     def enabled(self) -> bool:
-        return self.eval_env is not None or self.in_step is not None
+        return self.own_envs is not None or self.in_step is not None
 
     def prepare(self):
-        """Make the run of the policy on ``eval_env`` (on a GPU: capture its CUDA graph) if not made yet, so that the
-        first evaluation costs no capture."""
-        if self.eval_env is not None and self._run is None:
-            self.learner.eval_mode()
-            self._run = FirstEpisodesRun(self.eval_env, deterministic(self.learner.actor))
-            self.learner.train_mode()
+        """``OwnEnvsJudge.prepare``, where the evaluations run on envs of their own."""
+        if self.own_envs is not None:
+            self.own_envs.prepare()
 
-    def give(self, summary: EpisodeSummary):
-        """The verdict on the policy after the iteration now ending, from an evaluation run elsewhere (a population's,
-        which judges its members together): ``judge`` returns it."""
-        self._given = summary
-
-    def due(self, it: int, stats: EpisodeSummary) -> bool:
-        """Whether the policy after iteration ``it`` is to be evaluated (``eval.min_interval``, ``max_interval``)."""
-        since = it - self.last_iteration
+    def due(self, member: int, it: int, stats: EpisodeSummary) -> bool:
+        """Whether ``member``'s policy after iteration ``it`` is to be evaluated (``eval.min_interval``,
+        ``max_interval``), by its training episodes' ``stats``."""
+        since = it - self.last_iteration[member]
         return since >= self.limits.max_interval or (since >= self.limits.min_interval and self.rule(stats))
 
-    def judge(self, it: int, stats: EpisodeSummary, env_steps: int) -> Judged | None:
-        """The verdict of an evaluation after iteration ``it``: on ``eval_env``, of the policy after ``it`` where one is
-        due; in the step, of the policy it froze, where its episodes are over (one is begun where it is due and none
-        runs); a verdict ``give``n for it. None otherwise."""
-        if self._given is not None:
-            self.last_iteration, summary, self._given = it, self._given, None
-            return Judged(summary, it, env_steps)
+    def judge(self, it: int, episodes: list[EpisodeSummary], members: list[int],
+              env_steps: list[int]) -> dict[int, Judged]:
+        """The verdicts after iteration ``it`` (``episodes``: each member's training episodes of it; ``env_steps``: its
+        env steps so far), by member: on envs of their own, where any of ``members`` is due, of every one of them, in
+        one run; in the step, of the policy it froze, where its episodes are over (one is begun where it is due and
+        none runs)."""
         if self.in_step is not None:
-            return self._in_step_verdict(it, stats, env_steps)
-        if self.eval_env is None or not self.due(it, stats):
-            return None
-        self.last_iteration = it
-        self.prepare()
-        self.learner.eval_mode()
-        try:
-            return Judged(evaluate(self._run, self.seed, self.rule), it, env_steps)
-        finally:
-            self.learner.train_mode()
+            judged = self._in_step_verdict(it, episodes[0], env_steps[0])
+            return {} if judged is None else {0: judged}
+        if self.own_envs is None or not any(self.due(k, it, episodes[k]) for k in members):
+            return {}
+        for k in members:
+            self.last_iteration[k] = it
+        return {k: Judged(summary, it, env_steps[k]) for k, summary in self.own_envs(members).items()}
 
     def _in_step_verdict(self, it: int, stats: EpisodeSummary, env_steps: int) -> Judged | None:
         judged = self.in_step.verdict(self.num_steps_per_env, self.rule) if self.in_step.running else None
-        if not self.in_step.running and self.due(it, stats):
-            self.last_iteration = it
+        if not self.in_step.running and self.due(0, it, stats):
+            self.last_iteration[0] = it
             state = self.learner.state_dict()
-            self.learner.eval_mode()  # the actor as the learner stands now
+            actor = self.learner.member_actor()  # the actor as the learner stands now
             try:
-                self.in_step.begin(self.learner.actor, it, env_steps, state)
+                self.in_step.begin(actor, it, env_steps, state)
             finally:
                 self.learner.train_mode()
         return judged
-
-    def record(self, judged: Judged, solved: bool, progress: Progress, run_dir: Path | None,
-               write: Callable[[Path, dict, int, dict], None]):
-        """Enter a verdict in ``progress``: the first solved one as ``solved_at`` (the judged policy's iterations and
-        env steps, the training seconds until the verdict); the best so far (solved first, then the play metric) as
-        ``best``, its policy written (``write``) as ``model_best.pt`` in ``run_dir`` with the progress as it stood
-        after its iteration, so that a resume from it continues there."""
-        metric = self.play_metric
-        if solved and progress.solved_at is None:
-            progress.solved_at = {"iterations": judged.iteration + 1, "env_steps": judged.env_steps,
-                                  "train_time_s": round(progress.train_time_s, 3),
-                                  metric: getattr(judged.summary, metric)}
-        score = (solved, getattr(judged.summary, self.play_metric) or 0.0)
-        best = progress.best
-        if best is not None and score <= (best["solved"], best[self.play_metric] or 0.0):
-            return
-        progress.best = {"iteration": judged.iteration, "solved": solved, self.play_metric: score[1]}
-        if run_dir is not None:
-            state = judged.state if judged.state is not None else self.learner.state_dict()
-            infos = progress.as_of(judged.iteration) if judged.state is not None else progress.infos()
-            write(run_dir / BEST_CHECKPOINT, state, judged.iteration, infos)

@@ -7,10 +7,11 @@ Member k (``Member``: a seed and the settings it differs in) owns envs [k N, (k+
 restarted as a solo run of its seed starts them (``BatchedEnv.restart``: the same start states and physics draws), and
 networks initialised as that run's. ``PopulationLearner`` (``learners.batched_ppo``) runs the members' iterations
 together: one rollout of the whole env, then one batched PPO update (per member rsl-rl's PPO) of the members still
-training. Everything else is per member, an ordinary ``TaskRunner`` over a ``MemberLearner`` (a view of member k):
-its progress, evaluations (on envs of their own, with its seed), verdicts, ``model_best.pt``, checkpoints, exports,
-curve and ``summary.json`` in a run folder of its own, which ``play.py --run`` and ``train.py --resume`` take as any
-run's.
+training. Everything else is per member, a run's record in the one training loop (``rl.loop``, ``rl.record``): its
+progress, evaluations (on envs of their own, with its seed; all members' in one batched run), verdicts,
+``model_best.pt``, checkpoints, exports, curve and ``summary.json`` in a run folder of its own, which ``play.py --run``
+and ``train.py --resume`` take as any run's. Here: the members, what keeps a training from being one, and the
+population's own files.
 """
 
 from __future__ import annotations
@@ -19,16 +20,22 @@ from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensord
 
 # isort: split
 import itertools
+import json
+import statistics
+from typing import TYPE_CHECKING
 
-import torch
-
-from ..engine.env import BatchedEnv
-from ..evaluation.rollouts import FirstEpisodes, FirstEpisodesRun, whole_episode_steps
-from ..evaluation.statistics import EpisodeSummary, SolvedRule
 from ..settings.config import ConfigError, refuse_present
 from ..settings.deprecation import moved_names
+from ..settings.files import write_text
 from .config import TrainConfig
-from .learners.batched_ppo.learner import VARIABLE_SETTINGS, Member, PopulationLearner, batched_ppo_problems
+from .distributed import Ranks, from_every_rank
+from .learners.batched_ppo.learner import VARIABLE_SETTINGS, Member, batched_ppo_problems
+from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from .loop import TrainingLoop
 
 
 def parse_vary(vary: list[str]) -> dict[str, list[float]]:
@@ -76,41 +83,66 @@ def check_population(cfg: TrainConfig, members: list[Member]):
         raise ConfigError("a population needs at least one member")
 
 
-class PopulationEvaluation:
-    """The members' evaluations as one run on ``eval_env`` (K x M envs, M = ``eval.num_envs``): member k's block
-    restarts as its own evaluation env starts (``BatchedEnv.restart`` with its seed: the episodes ``play.py --headless``
-    plays of its run) and acts with member k's deterministic policy, all members' in one batched forward; each block's
-    whole first episodes are member k's verdict (cut, as a solo evaluation is, once every judged member's failures keep
-    the rule from being met)."""
+def member_rows(members: list[Member], summaries: list[RunSummary], metric: str) -> list[dict]:
+    """A row per member of the population's table: its seed, settings, status, iterations and seconds to solved and
+    the play metric of the verdict (``summaries``: the members' ``summary.json``)."""
+    rows = []
+    for member, summary in zip(members, summaries):
+        solved = summary.solved_at or {}
+        rows.append({"member": member.name, "seed": member.seed, "settings": dict(member.settings),
+                     "status": summary.status, "solved_iterations": solved.get("iterations"),
+                     "solved_s": solved.get("train_time_s"), metric: solved.get(metric),
+                     "iterations": summary.iterations, "train_time_s": summary.train_time_s})
+    return rows
 
-    def __init__(self, eval_env: BatchedEnv, learner: PopulationLearner, seeds: list[int], rule: SolvedRule):
-        self.env, self.learner, self.seeds, self.rule = eval_env, learner, seeds, rule
-        self.num_members, self.num_envs = len(seeds), eval_env.num_envs // len(seeds)
-        self.steps = whole_episode_steps(eval_env)
-        self._run = FirstEpisodesRun(eval_env, self._policy)
 
-    def _policy(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.learner.ppo.model.action_mean(obs.view(self.num_members, self.num_envs, -1)).flatten(0, 1)
+def write_population(loop: TrainingLoop, summaries: list[RunSummary], run_dir: Path, ranks: Ranks,
+                     train_time_s: float, setup_time_s: float) -> dict:
+    """A population's ``members.md`` and ``population.json`` in ``run_dir`` (rank 0 of ``ranks`` writes them; every
+    process returns the whole), after ``loop`` trained this process's members (whose ``summaries`` these are) for
+    ``train_time_s``: the members' rows (``member_rows``); the population's wall time (its slowest process's), env
+    steps, and the pace of its median iterations (evaluations, checkpoints and lines included; summed over the
+    processes)."""
+    cfg, metric = loop.config, loop.config.task_spec.play_metric
+    median_s = statistics.median(loop.iteration_s) if loop.iteration_s else None
+    parts = from_every_rank({"rows": member_rows(loop.members, summaries, metric), "train_time_s": train_time_s,
+                             "evaluation_s": loop.evaluation_s, "setup_time_s": setup_time_s,
+                             "num_envs": loop.env.num_envs, "median_iteration_s": median_s,
+                             "env_steps": sum(summary.env_steps for summary in summaries),
+                             "iteration_env_steps": loop.env.num_envs * cfg.agent.num_steps_per_env}, ranks)
+    rows = [row for part in parts for row in part["rows"]]
+    solved_s = [row["solved_s"] for row in rows if row["solved_s"] is not None]
+    train_time_s, env_steps = max(part["train_time_s"] for part in parts), sum(part["env_steps"] for part in parts)
+    medians = [part["median_iteration_s"] for part in parts]
+    paced = None not in medians
+    result = {"task": cfg.task, "members": rows, "solved": len(solved_s),
+              "train_time_s": round(train_time_s, 3),
+              "evaluation_s": round(max(part["evaluation_s"] for part in parts), 3),
+              "setup_time_s": round(max(part["setup_time_s"] for part in parts), 3),
+              "env_steps": env_steps, "env_steps_per_s": round(env_steps / train_time_s),
+              "median_iteration_s": round(max(medians), 5) if paced else None,
+              "median_iteration_env_steps_per_s": round(sum(part["iteration_env_steps"] / part["median_iteration_s"]
+                                                            for part in parts)) if paced else None,
+              "num_envs": sum(part["num_envs"] for part in parts), "device": loop.env.device,
+              "processes": ranks.world_size,
+              "median_solved_s": statistics.median(solved_s) if solved_s else None}
+    if ranks.writes:
+        write_text(run_dir / POPULATION_FILE, json.dumps(result, indent=2) + "\n")
+        write_text(run_dir / MEMBERS_FILE, members_table(rows, metric))
+    return result
 
-    def _hopeless(self, members: list[int]) -> bool:
-        """Whether every one of ``members`` has failed too many episodes for the rule (one read from the device)."""
-        tally = self._run.tally
-        failed = (tally.finished & ~tally.reached).view(self.num_members, self.num_envs).sum(dim=1).tolist()
-        return all(self.rule.hopeless(failed[k], self.num_envs) for k in members)
 
-    def __call__(self, members: list[int]) -> dict[int, EpisodeSummary]:
-        """Each of ``members``' verdict on its policy as it stands."""
-        m = self.num_envs
-        for k in members:
-            self.env.restart(k * m, (k + 1) * m, self.seeds[k])
-        result = self._run(self.steps, reset=False, hopeless=lambda failed: self._hopeless(members))
-        cap = min(self.steps, self.env.max_episode_length)
-        return {k: FirstEpisodes(result.returns[k * m:(k + 1) * m], result.lengths[k * m:(k + 1) * m],
-                                 result.reached_limit[k * m:(k + 1) * m], result.cut_at_step,
-                                 None if result.ended is None else result.ended[k * m:(k + 1) * m]).summary(cap)
-                for k in members}
-
+def members_table(rows: list[dict], metric: str) -> str:
+    """The members' markdown table (``write_population``'s rows)."""
+    lines = [f"| member | status | solved at iteration | solved after s | {metric} | iterations | seconds |",
+             "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        value = f"{row[metric]:.3f}" if row[metric] is not None else "-"
+        lines.append(f"| {row['member']} | {row['status']} | {row['solved_iterations'] or '-'} | "
+                     f"{row['solved_s'] if row['solved_s'] is not None else '-'} | {value} | {row['iterations']} | "
+                     f"{row['train_time_s']} |")
+    return "\n".join(lines) + "\n"
 
 __getattr__ = moved_names(__name__, f"{__package__}.learners.batched_ppo.learner")
-"""The learner's parts that lived here (``PopulationLearner``, ``MemberLearner``, ...), until
+"""The learner's parts that lived here (``PopulationLearner``, ``Member``, ...), until
 ``settings.deprecation.REMOVED_IN``."""

@@ -58,21 +58,25 @@ def metrics(stats: EpisodeSummary, evaluation: EpisodeSummary | None, loss_dict:
     return scalars
 
 
-def run_eta_s(progress, start_s: float, span: tuple[int, int, int], evaluations) -> float:
+def run_eta_s(progress, start_s: float, span: tuple[int, int, int], evaluations, member: int = 0) -> float:
     """``eta_s`` of a run (``runs.Progress``, started at ``perf_counter`` ``start_s``) after iteration ``it`` of
-    ``span`` (first, it, end: exclusive); the evaluations due are the periodic ones of ``evaluations``
+    ``span`` (first, it, end: exclusive); the evaluations due are ``member``'s periodic ones of ``evaluations``
     (``rl.evaluations.Evaluations``: ``eval.max_interval``)."""
     first, it, end = span
     measured = [h["evaluation"]["seconds"] for h in progress.history if h["iteration"] >= first and "evaluation" in h]
-    due = (end - 1 - evaluations.last_iteration) // evaluations.limits.max_interval if evaluations.enabled else 0
+    last = evaluations.last_iteration[member]
+    due = (end - 1 - last) // evaluations.limits.max_interval if evaluations.enabled else 0
     return eta_s(time.perf_counter() - start_s, measured, it + 1 - first, end - it - 1, due)
 
 
 class ProgressLine:
-    """The console line of each iteration of one run of ``cfg``'s task on ``env``."""
+    """The console line of each iteration of ``member``'s run of ``cfg``'s task by ``learner`` (its ``num_envs`` envs,
+    their time limit ``max_episode_length`` env steps, on ``device``)."""
 
-    def __init__(self, cfg: TrainConfig, learner: Learner, device: str):
-        self.cfg, self.learner, self.env, self.device = cfg, learner, learner.env, device
+    def __init__(self, cfg: TrainConfig, learner: Learner, member: int, num_envs: int, max_episode_length: int,
+                 device: str):
+        self.cfg, self.learner, self.member, self.device = cfg, learner, member, device
+        self.num_envs, self.max_episode_length = num_envs, max_episode_length
         self.solved_rule, self.play_metric = cfg.task_spec.solved, cfg.task_spec.play_metric
         self.staggered_starts = False
         """The run started each env's time-out counter at a random step (its first iteration's line says so)."""
@@ -103,14 +107,14 @@ class ProgressLine:
         """The training episodes' part of the line."""
         dt = self.cfg.env.sim.env_dt
         if not stats.episodes:  # a policy that balances ends no episode for many iterations: how long they have run
-            running_s = self.learner.episode_steps.float().mean().item() * dt
-            return f"no episode ended; {self.env.num_envs} running, {running_s:5.2f} s in on average".ljust(60)
+            running_s = self.learner.episode_steps[self.member].float().mean().item() * dt
+            return f"no episode ended; {self.num_envs} running, {running_s:5.2f} s in on average".ljust(60)
         full = ""
         if self.solved_rule.full_episodes_only:  # the rule's own figure, padded so the columns stay aligned
             full = (f" (full {stats.full_reward_per_step:5.3f})" if stats.full_episodes else "").ljust(13)
         length = stats.mean_episode_length
         return (f"reward/step {stats.mean_reward_per_step:6.3f}{full} | ep len {length * dt:5.2f} s "
-                f"({length:5.0f}/{self.env.max_episode_length}) | {stats.episodes:5d} ep")
+                f"({length:5.0f}/{self.max_episode_length}) | {stats.episodes:5d} ep")
 
     def long_run_note(self, iterations: int, eta: float) -> str:
         """What to do about a run that will take hours here."""
@@ -163,17 +167,18 @@ def write_scalars(writer, scalars: dict[str, float], step: int):
 
 
 class Report:
-    """Where each iteration of a run of ``cfg`` on ``env`` is reported: rsl-rl's ``logger`` (its own console with
-    ``console: rsl_rl``, else its metrics writer: TensorBoard, wandb or none, in ``log_dir``; None writes nothing) and,
-    on the process that writes, the console line."""
+    """Where each iteration of ``member``'s run of ``cfg`` by ``learner`` on ``env`` is reported: rsl-rl's ``logger``
+    (its own console with ``console: rsl_rl``, else its metrics writer: TensorBoard, wandb or none, in ``log_dir``;
+    None writes nothing) and, on the process that writes, the console line."""
 
-    def __init__(self, cfg: TrainConfig, learner: Learner, rsl_rl_cfg: dict, log_dir: Path | None, ranks: Ranks):
-        env = learner.env  # the envs its episodes are of
-        self.logger = Logger(str(log_dir) if log_dir is not None else None, rsl_rl_cfg, env.cfg, env.num_envs,
+    def __init__(self, cfg: TrainConfig, learner: Learner, member: int, env, rsl_rl_cfg: dict, log_dir: Path | None,
+                 ranks: Ranks):
+        num_envs = learner.episode_steps.shape[1]  # the envs the member's episodes are of
+        self.logger = Logger(str(log_dir) if log_dir is not None else None, rsl_rl_cfg, env.cfg, num_envs,
                              ranks.distributed, ranks.world_size, ranks.rank, env.device)
         self.logger.git_status_repos = [path for path in (*self.logger.git_status_repos, __file__)
                                         if in_git_repository(path)]
-        self.line = ProgressLine(cfg, learner, env.device)
+        self.line = ProgressLine(cfg, learner, member, num_envs, env.max_episode_length, env.device)
         self.rsl_rl_console, self.writes = cfg.console == "rsl_rl", ranks.writes
         self.console = True
         """Print the console line (a population prints its own)."""

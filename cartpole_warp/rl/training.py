@@ -1,8 +1,11 @@
-"""One training run: the env and ``TaskRunner`` built from a ``TrainConfig``, Ctrl-C handling, and the run
-folder's artefacts (config, checkpoints, exports, learning curve, ``summary.json``).
+"""A training end to end, of one run or of a population's (``--seeds``: K runs of one task in one process, on one
+batched env, ``rl.population``): the env, learner and ``TrainingLoop`` built from a ``TrainConfig``, Ctrl-C handling,
+and each run folder's artefacts (config, checkpoints, exports, learning curve, ``summary.json``), and a population's
+own files (``members.md``, ``population.json``).
 
     training = Training(cfg, run_dir)            # builds the env (compiles Warp kernels on first use)
     summary = training.run()                     # Ctrl-C ends after the current iteration, saved
+    result = Training(cfg, run_dir, members=members_of([0, 1, 2])).run()    # members in run_dir/seed0, ...
 """
 
 from __future__ import annotations
@@ -10,9 +13,8 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import signal
-import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import torch
@@ -20,13 +22,17 @@ import torch
 from ..engine import camera
 from ..engine.runtime import free_memory_bytes, resolve_device, timed
 from ..evaluation.in_step import InStepEvaluation
-from ..settings.config import ConfigError
+from ..settings.config import ConfigError, EnvConfig
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
-from .distributed import SINGLE_PROCESS, Ranks
+from .distributed import SINGLE_PROCESS, Ranks, from_rank_zero, join_population_group
 from .learners import learner_class
-from .runner import TaskRunner
-from .runs import CURVE_FILE, EXPORT_DIR, RunSummary, latest_checkpoint, play_checkpoint, save_config
+from .learners.batched_ppo.learner import Member, PopulationLearner
+from .loop import TrainingLoop
+from .policies import to_rsl_rl
+from .population import check_population, write_population
+from .record import solved_definition
+from .runs import RunSummary, save_config
 
 ENV_BYTES_PER_ENV = 8_400
 """Host memory per env of a training process besides rsl-rl's storage (the env's buffers, its Newton scene, torch's
@@ -77,6 +83,19 @@ def check_memory(cfg: TrainConfig, device: str):
                 f"~{free // need_per_env - evaluation_envs:,} envs (--num-envs) or fewer --agent.num-steps-per-env")
 
 
+def check_population_memory(cfg: TrainConfig, members: int, device: str):
+    """ConfigError in one line, with the estimate, where ``members`` x ``env.num_envs`` envs (and the evaluation's)
+    would not fit in the free memory of the host or of ``device``."""
+    for where, need_per_env in bytes_per_env_by_place(cfg, device).items():
+        per_member = (cfg.env.num_envs + cfg.eval.num_envs) * need_per_env
+        need, free = members * per_member, free_memory_bytes(where)
+        if need > free:
+            raise ConfigError(f"a population of {members} members x {cfg.env.num_envs:,} envs of {cfg.task} needs "
+                              f"about {need / 1e9:,.1f} GB on {where} (with {cfg.eval.num_envs} evaluation envs each); "
+                              f"it has {free / 1e9:,.1f} GB free: at most ~{free // per_member} members of "
+                              f"{cfg.env.num_envs:,} envs (fewer --seeds or --num-envs)")
+
+
 class Interrupts:
     """SIGINT and SIGTERM (which torchrun sends its processes) while a training runs, as a context: the first calls
     ``stop`` (training ends after the iteration in progress, which is saved) and ``say``s so; a second
@@ -107,115 +126,100 @@ class Interrupts:
         self.say(f"{self.stopping} after this iteration and saving (Ctrl-C again aborts without saving)")
 
 
-def median_of(history: list[dict], key: str) -> float | None:
-    """Median of ``key`` over the iterations that recorded it, rounded to microseconds (None if none did)."""
-    values = [h[key] for h in history if key in h]
-    return round(statistics.median(values), 3) if values else None
-
-
-def solved_definition(cfg: TrainConfig) -> str:
-    """The task's solved rule and what it judges, in words."""
-    return (f"{cfg.task_spec.solved.describe()}, over the deterministic policy's whole episodes in "
-            f"{cfg.eval.num_envs} evaluation envs (play.py --headless's)")
-
-
-def finish_run(runner: TaskRunner, run_dir: Path, timing_s: dict[str, float], setup_time_s: float,
-               trained_before_s: float = 0.0, processes: int = 1) -> RunSummary:
-    """The end of ``runner``'s run in ``run_dir``: the exports of the policy play.py plays (``model_best.pt``'s where
-    an evaluation ran, else the last), the learning curve, ``summary.json`` (returned). ``timing_s`` gains the
-    training's seconds in this process (less ``trained_before_s``: a resumed run's earlier processes') and the
-    exports' and the curve's."""
-    cfg, progress = runner.train_cfg, runner.progress
-    timing_s["training"] = progress.train_time_s - trained_before_s
-    with timed(timing_s, "export"):
-        exports = []
-        if progress.iterations:  # play's policy: a policy can get worse after its best evaluation
-            runner.load(str(play_checkpoint(run_dir)), load_cfg={"actor": True})
-            exports = runner.export(run_dir / EXPORT_DIR)
-    with timed(timing_s, "curve"):
-        plot(runner, run_dir)
-    last = next((h for h in reversed(progress.history) if h["episodes"]), {})
-    evaluated = next((h for h in reversed(progress.history) if "evaluation" in h), None)
-    summary = RunSummary(
-        status=runner.stop_reason or "completed", iterations=progress.iterations, env_steps=progress.env_steps,
-        train_time_s=round(progress.train_time_s, 3),
-        setup_time_s=round(setup_time_s, 3),
-        env_steps_per_s=round(progress.env_steps / progress.train_time_s) if progress.train_time_s else None,
-        collection_ms=median_of(progress.history, "collection_ms"),
-        learning_ms=median_of(progress.history, "learning_ms"),
-        final={k: last.get(k) for k in ("iteration", "episodes", "mean_return", "mean_episode_length",
-                                        "mean_reward_per_step", "time_limit_fraction", "full_episodes",
-                                        "full_reward_per_step")},
-        evaluation=({"iteration": evaluated["iteration"], **evaluated["evaluation"]} if evaluated else None),
-        evaluations=sum("evaluation" in h for h in progress.history),
-        evaluation_s=round(sum(h["evaluation"]["seconds"] for h in progress.history if "evaluation" in h), 3),
-        best=progress.best,
-        max_episode_length=runner.env.max_episode_length if cfg.env.task.has_time_limit else None,
-        env_dt_s=cfg.env.sim.env_dt,
-        solved=progress.solved_at is not None, solved_at=progress.solved_at,
-        solved_definition=solved_definition(cfg),
-        task=cfg.task,
-        num_envs=cfg.env.num_envs * processes,
-        processes=processes,
-        device=runner.env.device,
-        checkpoint=latest_checkpoint(run_dir).name,
-        exports=[str(e.relative_to(run_dir)) for e in exports],
-        timing_s={phase: round(seconds, 3) for phase, seconds in timing_s.items()},
-    )
-    summary.write(run_dir)
-    return summary
-
-
-def plot(runner: TaskRunner, run_dir: Path) -> Path:
-    """Draw ``learning_curve.png`` from ``runner``'s progress history (matplotlib imported only now, so that start-up
-    does not pay for it)."""
-    from .curve import plot_learning_curve
-
-    task = runner.train_cfg.task_spec
-    return plot_learning_curve(run_dir / CURVE_FILE, runner.progress.history, task, f"{task.name}: run {run_dir.name}")
-
-
 class Training:
-    """A run in ``run_dir`` (created, with its ``config.yaml``, only once the env is built and a checkpoint to resume
-    from is loaded). In a torchrun job (``ranks``) each process trains its own envs on its own GPU with seed + rank,
-    and rank 0 alone writes the run folder."""
+    """A training in ``run_dir`` (created, with its ``config.yaml``, only once the env is built and a checkpoint to
+    resume from is loaded): one run, or with ``members`` a population's, member k training on envs [k N, (k+1) N) of
+    one env of K x N envs (N = ``env.num_envs``) and writing an ordinary run folder, ``run_dir / member.name``. In a
+    torchrun job (``ranks``) a run's processes each train its own envs on their own GPU with seed + rank, and rank 0
+    alone writes the run folder; a population's each train their share of the members, in rank 0's ``run_dir``.
+    ``before_build`` is called once the training is checked (ConfigError where it cannot run or would not fit),
+    before anything is built."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None,
-                 ranks: Ranks = SINGLE_PROCESS, timing_s: dict[str, float] | None = None):
-        self.cfg = cfg.validate()
+                 ranks: Ranks = SINGLE_PROCESS, timing_s: dict[str, float] | None = None,
+                 members: Sequence[Member] = (), before_build: Callable[[], None] | None = None):
+        self.cfg, self.ranks = cfg.validate(), ranks
         if cfg.agent.logger == "wandb" and importlib.util.find_spec("wandb") is None:
             raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
-        self.run_dir, self.ranks = Path(run_dir), ranks
+        self.prefix = f"rank {ranks.rank}: " if members and ranks.distributed else ""
+        """Before each console line of a population's process."""
+        self.all_members, self.members = list(members), ranks.share(list(members)) if members else []
         start = time.perf_counter()
-        env_cfg = learner_class(cfg.agent.learner).env_config(cfg, ranks.env_config(cfg.env, torch.cuda.device_count()),
-                                                              ranks)
-        check_memory(dataclasses.replace(cfg, env=env_cfg), resolve_device(env_cfg.device))
+        env_cfg = self._env_config()
+        if before_build is not None:
+            before_build()
+        self.run_dir = Path(from_rank_zero(Path(run_dir), ranks) if members else run_dir)
         torch.manual_seed(env_cfg.seed)
         cfg.apply_torch_threads()
         self.task = cfg.task_spec
-        in_step = cfg.eval.in_step and ranks.writes  # the process that writes the run evaluates
-        extra = cfg.eval.num_envs if in_step else 0
-        batched = self.task.env_class(dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs + extra))
-        self.env = RslRlVecEnv(batched, InStepEvaluation(batched, extra, cfg.env.seed) if in_step else None)
-        self.timing_s = (timing_s if timing_s is not None else {}) | batched.build_time_s
-        """Where the run's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); summary.json keeps
-        them."""
-        self.eval_env = None
-        """The evaluation's envs where they are an env of their own (``TaskRunner``)."""
-        if ranks.writes and not in_step:
-            with timed(self.timing_s, "eval_env"):
-                self.eval_env = self.task.env_class(dataclasses.replace(env_cfg, num_envs=cfg.eval.num_envs,
-                                                                        seed=cfg.env.seed))
-        with timed(self.timing_s, "networks"):
-            self.runner = TaskRunner(self.env, dataclasses.replace(cfg, env=env_cfg),
-                                     self.run_dir if ranks.writes else None, self.eval_env, ranks=ranks)
+        self.env = self._build_env(env_cfg)
+        self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
+        """Where the training's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); each
+        summary.json keeps them."""
+        self.loop = self._build_loop(env_cfg)
         with timed(self.timing_s, "eval_env"):
-            self.runner.evaluations.prepare()
+            self.loop.evaluations.prepare()
             if resume_from is not None:
-                self.runner.load(str(resume_from))
-            if ranks.writes:
-                save_config(self.run_dir, cfg)
+                self.loop.records[0].load(resume_from)
+            for record, config in zip(self.loop.records, [m.config(self.cfg) for m in self.members] or [cfg]):
+                if record.run_dir is not None:
+                    save_config(record.run_dir, config)
         self.setup_time_s = time.perf_counter() - start
+
+    def _env_config(self) -> EnvConfig:
+        """This process's env config (ConfigError, before anything is built, where the training cannot run or would
+        not fit in memory): the learner's (``Learner.env_config``) of a run; a population's on this process's device,
+        judged on envs of its own where the task evaluates inside the step (``eval.in_step``: a task's GPU default for
+        long runs, made for one run's envs)."""
+        cfg, ranks = self.cfg, self.ranks
+        if not self.members:
+            env_cfg = learner_class(cfg.agent.learner).env_config(cfg, ranks.env_config(cfg.env,
+                                                                                         torch.cuda.device_count()),
+                                                                  ranks)
+            check_memory(dataclasses.replace(cfg, env=env_cfg), resolve_device(env_cfg.device))
+            return env_cfg
+        if cfg.eval.in_step:
+            print(f"{self.prefix}note: a population judges its members on envs of their own, not inside the "
+                  "training's step (eval.in_step)", flush=True)
+            cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, in_step=False))
+        check_population(cfg, self.all_members)
+        device = resolve_device(ranks.device(cfg.env.device, torch.cuda.device_count()))
+        self.cfg = cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
+        check_population_memory(cfg, len(self.members), device)
+        join_population_group(ranks, device)
+        return cfg.env
+
+    def _build_env(self, env_cfg: EnvConfig) -> RslRlVecEnv:
+        """The training's env: a run's envs (and the evaluation's, where it runs inside the step, on the process that
+        writes), or the members' blocks, each restarted as a solo run of its seed starts them."""
+        members = self.members
+        in_step = self.cfg.eval.in_step and self.ranks.writes  # the process that writes the run evaluates
+        extra = self.cfg.eval.num_envs if in_step else 0
+        n = env_cfg.num_envs
+        batched = self.task.env_class(dataclasses.replace(env_cfg, num_envs=max(1, len(members)) * n + extra))
+        for k, member in enumerate(members):
+            batched.restart(k * n, (k + 1) * n, member.seed)
+        return RslRlVecEnv(batched, InStepEvaluation(batched, extra, self.cfg.env.seed) if in_step else None)
+
+    def _build_loop(self, env_cfg: EnvConfig) -> TrainingLoop:
+        """The learner (a population's built here, before its evaluation envs), the evaluation's envs (where they are
+        envs of their own, in a process that judges), the loop."""
+        cfg, env, members = self.cfg, self.env, self.members
+        learner = None
+        if members:
+            with timed(self.timing_s, "networks"):
+                rsl_rl_cfg = to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images)
+                learner = PopulationLearner(env, [member.config(cfg) for member in members], rsl_rl_cfg,
+                                            cfg.env.seed)
+        eval_env = None
+        if (members or self.ranks.writes) and env.evaluation is None:
+            with timed(self.timing_s, "eval_env"):
+                eval_env = self.task.env_class(dataclasses.replace(
+                    env_cfg, num_envs=max(1, len(members)) * cfg.eval.num_envs, seed=cfg.env.seed))
+        with timed(self.timing_s, "networks"):
+            return TrainingLoop(env, dataclasses.replace(cfg, env=env_cfg),
+                                self.run_dir if members or self.ranks.writes else None, eval_env, learner,
+                                SINGLE_PROCESS if members else self.ranks, members, self.prefix)
 
     @property
     def solved_definition(self) -> str:
@@ -227,25 +231,34 @@ class Training:
         """The env's time limit in env steps."""
         return self.env.max_episode_length
 
-    def run(self) -> RunSummary | None:
-        """Train ``agent.max_iterations`` iterations (fewer on Ctrl-C or SIGTERM, which torchrun sends its processes,
-        or, with stop_when_solved, once solved); then export the policy play.py plays (``model_best.pt``'s where an
-        evaluation ran, else the last), draw the learning curve and write ``summary.json``, and return it (None in
-        the processes that do not write). A signal once training has ended waits until summary.json is written."""
-        def say(line: str):  # on a line of its own, after the terminal's ^C
-            if self.ranks.writes:
-                print(f"\n{line}", flush=True)
+    @property
+    def interrupted(self) -> bool:
+        """Whether a signal (``run``; in a torchrun job, in any of the run's processes) stopped the training."""
+        return self.loop.stop_requested == "interrupted" or any(record.stop_reason == "interrupted"
+                                                                 for record in self.loop.records)
 
-        with Interrupts(lambda: self.runner.request_stop("interrupted"), say, "stopping") as interrupts:
-            trained_before_s = self.runner.progress.train_time_s  # a resumed run's earlier processes
+    def run(self) -> RunSummary | dict | None:
+        """Train ``agent.max_iterations`` iterations (each run fewer on Ctrl-C or SIGTERM, which torchrun sends its
+        processes, non-finite networks or, with stop_when_solved, once solved); then each run folder's end
+        (``RunRecord.summarize``: the exports of the policy play.py plays, the learning curve, ``summary.json``). A
+        run's summary out (None in the processes that do not write), or a population's table (``population.json``'s,
+        which every process returns). A signal once training has ended waits until the files are written."""
+        def say(line: str):  # on a line of its own, after the terminal's ^C
+            if self.ranks.writes or self.members:
+                print(f"\n{self.prefix}{line}", flush=True)
+
+        records = self.loop.records
+        stopping = "stopping every member" if self.members else "stopping"
+        with Interrupts(lambda: self.loop.request_stop("interrupted"), say, stopping) as interrupts:
+            trained_before_s, start = records[0].progress.train_time_s, time.perf_counter()  # a resumed run's
             try:
-                self.runner.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
+                self.loop.learn(self.cfg.agent.max_iterations, self.cfg.agent.init_at_random_ep_len)
             finally:
                 interrupts.finishing = True
-                self.runner.release_graphs()
-            return self._finish(trained_before_s) if self.ranks.writes else None
-
-    def _finish(self, trained_before_s: float) -> RunSummary:
-        """The end of a run: exports, the learning curve, ``summary.json``."""
-        return finish_run(self.runner, self.run_dir, self.timing_s, self.setup_time_s, trained_before_s,
-                          self.ranks.world_size)
+                self.loop.release_graphs()
+            train_time_s = time.perf_counter() - start
+            if not self.members:
+                return (records[0].summarize(self.timing_s, self.setup_time_s, trained_before_s,
+                                             self.ranks.world_size) if self.ranks.writes else None)
+            summaries = [record.summarize(dict(self.timing_s), self.setup_time_s) for record in records]
+            return write_population(self.loop, summaries, self.run_dir, self.ranks, train_time_s, self.setup_time_s)

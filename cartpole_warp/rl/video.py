@@ -5,7 +5,7 @@ the pictures play.py draws; the logger gets where each clip is. The training env
 between clips run as fast as without them.
 
     clips = TrainingVideo(training, length=200, interval=50)
-    training.runner.on_iteration = clips           # called after each iteration
+    training.loop.on_iteration = clips             # called after each iteration
 """
 
 from __future__ import annotations
@@ -20,13 +20,13 @@ VIDEO_DIR = "videos"
 
 
 class TrainingVideo:
-    """``runner.on_iteration``: a clip of ``length`` env steps of the policy after iteration ``it`` where ``it``
+    """``TrainingLoop.on_iteration``: a clip of ``length`` env steps of the policy after iteration ``it`` where ``it``
     counts a multiple of ``interval`` iterations from the run's first (the first iteration's included)."""
 
     def __init__(self, training, length: int, interval: int):
-        cfg, runner = training.cfg, training.runner
-        self.runner, self.length, self.interval = runner, length, interval
-        self.first_iteration = runner.current_learning_iteration
+        cfg, self.record = training.cfg, training.loop.records[0]
+        self.length, self.interval = length, interval
+        self.first_iteration = self.record.next_iteration
         self.env = training.task.env_class(dataclasses.replace(cfg.env, num_envs=1))
         self.seed = cfg.env.seed
         self.out_dir = Path(training.run_dir) / VIDEO_DIR
@@ -36,14 +36,13 @@ class TrainingVideo:
         if (it - self.first_iteration) % self.interval:
             return
         recorder = Recorder.of_env(self.env, self.out_dir, policy_view=False, name=f"iteration_{it + 1}", usd=False)
-        self.runner.learner.eval_mode()
         try:
-            FirstEpisodesRun(self.env, self.runner.policy(), capture=False)(self.length, recorder, seed=self.seed)
+            FirstEpisodesRun(self.env, self.record.policy(), capture=False)(self.length, recorder, seed=self.seed)
         finally:
-            self.runner.learner.train_mode()
+            self.record.learner.train_mode()
         clip = recorder.close()[-1]
         self.written.append(clip)
-        writer = self.runner.logger.writer
+        writer = self.record.logger.writer
         relative = clip.relative_to(self.out_dir.parent)
         if hasattr(writer, "add_text"):  # TensorBoard: the clip's path at its iteration
             writer.add_text("Video", f"iteration {it + 1}: {relative}", it)

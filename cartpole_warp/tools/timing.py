@@ -8,7 +8,7 @@ Times (device-synchronised, means over repeats after three warm-up iterations, b
 its CUDA graphs on a GPU): ``env.step`` alone; one rollout step launched op by op (policy ``act`` + ``env.step`` +
 ``process_env_step`` + episode statistics); one iteration's rollout and returns as training runs them (one graph
 replay on a GPU with ``agent.cuda_graph``); the PPO update as training runs it; whole iterations of
-``TaskRunner.learn``.
+``TrainingLoop.learn``.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import torch
 
 from ..cli import clean_errors, quiet_libraries
 from ..engine.scene import StageError
-from ..rl.runner import TaskRunner
+from ..rl.loop import TrainingLoop
 from ..rl.runs import RunError
 from ..settings.config import ConfigError, require
 from ..train import resolve
@@ -48,9 +48,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.manual_seed(cfg.env.seed)
     cfg.apply_torch_threads()
     env = RslRlVecEnv(cfg.task_spec.env_class(cfg.env))
-    runner = TaskRunner(env, cfg, None)
-    device, steps, alg = env.device, cfg.agent.num_steps_per_env, runner.learner.alg
-    runner.learn(3)
+    loop = TrainingLoop(env, cfg, None)
+    device, steps, alg = env.device, cfg.agent.num_steps_per_env, loop.learner.alg
+    loop.learn(3)
     obs = env.get_observations()
 
     def rollout_step():
@@ -58,12 +58,13 @@ def main(argv: list[str] | None = None) -> int:
         with torch.inference_mode():
             obs, rewards, dones, extras = env.step(alg.act(obs))
             alg.process_env_step(obs, rewards, dones, extras)
-            runner.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"], extras["time_outs"])
+            loop.learner.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"],
+                                      extras["time_outs"])
 
     def rollout():
         nonlocal obs
         with torch.inference_mode():
-            obs = runner.learner.collect(obs)
+            obs = loop.learner.collect(obs)
 
     zeros = torch.zeros(env.num_envs, 1, device=device)
     rows = {"env.step alone": timed_ms(lambda: env.step(zeros), device, 50)}
@@ -72,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     rows[f"rollout of {steps} steps + returns, as training runs it"] = timed_ms(rollout, device, 1)
     rows["update (all mini-batches), as training runs it"] = timed_ms(alg.update, device, 1)
     iterations = 10
-    rows["whole iteration (TaskRunner.learn)"] = timed_ms(lambda: runner.learn(iterations), device, 1) / iterations
-    per_iteration = rows["whole iteration (TaskRunner.learn)"]
+    rows["whole iteration (TrainingLoop.learn)"] = timed_ms(lambda: loop.learn(iterations), device, 1) / iterations
+    per_iteration = rows["whole iteration (TrainingLoop.learn)"]
     name = torch.cuda.get_device_name(device) if device.startswith("cuda") else "CPU"
     print(f"\n{name}, {env.num_envs} envs, {steps} steps per env, {type(alg).__name__}, "
           f"{alg.num_learning_epochs} epochs x {alg.num_mini_batches} mini-batches")

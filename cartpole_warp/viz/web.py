@@ -237,7 +237,7 @@ def view_in_browser(env: BatchedEnv, policy: Callable[[torch.Tensor], torch.Tens
 
 
 class TrainingView:
-    """``runner.on_iteration``: the training envs in the browser viewer, drawn between iterations at most every
+    """``TrainingLoop.on_iteration``: the training envs in the browser viewer, drawn between iterations at most every
     ``interval_s`` seconds and while drawing takes at most ``1 / (1 + DRAW_RATIO)`` of the wall time (each draw waits
     ``DRAW_RATIO`` times the last draw's duration); the plots show each drawn iteration's mean reward per step and
     episode length. Each update makes the browser render: one that renders in software on the training's own cores

@@ -1,7 +1,7 @@
 """The batched PPO learner: K members (``Member``: a seed and the PPO settings it differs in) trained as one
 batched computation on one env of K x N envs, member k on block k (``PopulationLearner``; the update is
 ``update.PopulationPPO``). A population (``train.py --seeds``, ``rl.population``) and SAPG's leader and followers
-(``learners.sapg``) are both built on it; ``MemberLearner`` is member k as one run's learner."""
+(``learners.sapg``) are both built on it."""
 
 from __future__ import annotations
 
@@ -16,10 +16,11 @@ import torch
 from tensordict import TensorDict
 
 from ....engine.streams import PhaseClock, TorchGraph
-from ....evaluation.statistics import EpisodeStats, EpisodeSummary, summary_of
+from ....evaluation.statistics import EpisodeStats, summary_of
 from ....wrappers.rsl_rl import RslRlVecEnv, mirror
 from ...config import TrainConfig
 from ...policies import build_networks
+from .. import Readout
 from .update import PPO_ADAM_BETAS, PPO_ADAM_EPS, BatchedActorCritic, PopulationPPO
 
 VARIABLE_SETTINGS = ("learning_rate", "entropy_coef", "gamma", "lam", "clip_param", "desired_kl", "value_loss_coef",
@@ -58,39 +59,15 @@ def batched_ppo_problems(cfg: TrainConfig) -> dict[str, bool]:
     }
 
 
-@dataclass
-class Readout:
-    """Each member's figures after an iteration, on the host (``PopulationLearner.read``)."""
-
-    episodes: list[EpisodeSummary]
-    learning_rates: list[float]
-    finite: list[bool]
-    """The member's networks hold finite numbers only."""
-    losses: list[dict[str, float]]
-    action_std: list[torch.Tensor]
-
-
-class MemberEpisodes:
-    """Member k's training episodes of the iteration just read (``Readout``), as its runner pops them."""
-
-    def __init__(self, population: PopulationLearner, k: int):
-        self.population, self.k = population, k
-
-    def summary(self) -> EpisodeSummary:
-        return self.population.readout.episodes[self.k]
-
-    def pop(self, all_processes: bool = False) -> EpisodeSummary:
-        return self.summary()
-
-
 class PopulationLearner:
-    """The members' iterations on ``env`` (K x N envs, member k's block k), as one: each step the members' batched
-    actors act on their blocks, one env step; then one update of every member still ``active``. On a GPU with
+    """The learner (``rl.learners.Learner``) of K members: their iterations on ``env`` (K x N envs, member k's block
+    k), as one: each step the members' batched actors act on their blocks, one env step; then one update of every
+    member not ``retire``d. On a GPU with
     ``cuda_graph`` the rollout and the update are each captured as a CUDA graph (the second iteration) and replayed.
     ``actors`` and ``critics`` are the members' rsl-rl networks, initialised as their solo runs' (``torch`` seeded with
     each member's seed; the action noise and mini-batches are drawn after ``torch`` is seeded with ``seed``, so that
-    no member's draws depend on another's seed); ``MemberLearner`` copies the trained weights back into them where a
-    member is judged, saved or exported. ``ppo_class``: the batched update, built as ``PopulationPPO``."""
+    no member's draws depend on another's seed); ``member_actor`` copies the trained weights back into them where a
+    member is saved or exported. ``ppo_class``: the batched update, built as ``PopulationPPO``."""
 
     def __init__(self, env: RslRlVecEnv, cfgs: list[TrainConfig], rsl_rl_cfg: dict, seed: int,
                  ppo_class: Callable[..., PopulationPPO] = PopulationPPO):
@@ -100,6 +77,8 @@ class PopulationLearner:
         self.num_steps_per_env = rsl_rl_cfg["num_steps_per_env"]
         self.episodes = EpisodeStats(env.device, env.max_episode_length, groups=self.num_members)
         self.clock = PhaseClock(self.device, phases=2)
+        self.on_step = None
+        """rsl-rl's console's per-step hook: none (``batched_ppo_problems``)."""
         self.actors, self.critics = [], []
         for cfg in cfgs:
             torch.manual_seed(cfg.env.seed)
@@ -156,108 +135,77 @@ class PopulationLearner:
         rows = torch.cat([column.to(torch.float64) for column in columns], dim=1).tolist()
         names, std = list(losses), 9 + len(losses)
         self.readout = Readout([summary_of(row[:7]) for row in rows], [row[7] for row in rows],
-                               [bool(row[8]) for row in rows], [dict(zip(names, row[9:std])) for row in rows],
+                               [not row[8] for row in rows], [dict(zip(names, row[9:std])) for row in rows],
                                [torch.tensor(row[std:]) for row in rows])
         return self.readout
+
+    @property
+    def episode_steps(self) -> torch.Tensor:
+        return self.env.episode_length_buf.view(self.num_members, self.num_envs)
+
+    def begin(self, first_iteration: int, end_iteration: int):
+        """Nothing to prepare: every member trains from the first iteration."""
+
+    def retire(self, member: int):
+        """``member`` is updated no more (its rollout goes on: the env steps as one)."""
+        self.ppo.active[member] = False
+
+    def evaluation_policy(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """The members' means, all in one batched forward."""
+        def policy(obs: torch.Tensor) -> torch.Tensor:
+            return self.ppo.model.action_mean(obs.view(self.num_members, obs.shape[0] // self.num_members,
+                                                       -1)).flatten(0, 1)
+
+        return policy
+
+    def eval_mode(self):
+        """Nothing: the batched networks act alike in training and evaluation."""
+
+    def train_mode(self):
+        for network in (*self.actors, *self.critics):
+            network.train()
+
+    @torch.no_grad()
+    def member_actor(self, member: int = 0) -> torch.nn.Module:
+        """Member ``member``'s trained weights copied into its rsl-rl networks, in eval mode: its actor."""
+        actor_state, critic_state = self.ppo.model.member_state_dicts(member)
+        self.actors[member].load_state_dict(actor_state)
+        self.critics[member].load_state_dict(critic_state)
+        self.actors[member].eval()
+        self.critics[member].eval()
+        return self.actors[member]
+
+    def state_dict(self, member: int = 0) -> dict:
+        """rsl-rl's checkpoint of ``member``: its networks and its Adam state in the format of the optimizer of
+        ``SyncFreePPO`` (torch's ``Adam`` over the actor's then the critic's parameters), made without a torch
+        optimizer (the first one made imports ``torch._dynamo``: seconds, in the middle of training); its run folder
+        plays, resumes and exports as a solo run's."""
+        actor, critic = self.member_actor(member), self.critics[member]
+        ppo = self.ppo
+        moments = [ppo.model.member_parameters(member, tensor) for tensor in (ppo.exp_avg, ppo.exp_avg_sq)]
+        names = [(role, name) for role, network in (("actor", actor), ("critic", critic))
+                 for name, _ in network.named_parameters()]
+        step = ppo.adam_steps[member].to(torch.float32).cpu()
+        state = {i: {"step": step.clone(), "exp_avg": moments[0][role][name].clone(),
+                     "exp_avg_sq": moments[1][role][name].clone()} for i, (role, name) in enumerate(names)}
+        group = {"lr": ppo.learning_rate[member].item(), "betas": PPO_ADAM_BETAS, "eps": PPO_ADAM_EPS,
+                 "weight_decay": 0, "amsgrad": False, "maximize": False, "foreach": None, "capturable": False,
+                 "differentiable": False, "fused": None, "decoupled_weight_decay": False,
+                 "params": list(range(len(names)))}
+        self.train_mode()
+        return {"actor_state_dict": actor.state_dict(), "critic_state_dict": critic.state_dict(),
+                "optimizer_state_dict": {"state": state, "param_groups": [group]}}
+
+    @torch.no_grad()
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool, member: int = 0):
+        """The networks of ``loaded`` that ``load_cfg`` names (rsl-rl's choice of parts; None: both) into
+        ``member``'s (the best policy loaded for its exports; a population starts afresh, without its optimiser)."""
+        parts = load_cfg if load_cfg is not None else {"actor": True, "critic": True}
+        actor_state, critic_state = self.ppo.model.member_state_dicts(member)
+        self.ppo.model.load_member_state_dicts(
+            member, loaded["actor_state_dict"] if parts.get("actor") else actor_state,
+            loaded["critic_state_dict"] if parts.get("critic") else critic_state)
 
     def release_graphs(self):
         for graph in self._graphs or ():
             graph.release()
-
-
-class MemberEnv:
-    """Envs [k N, (k+1) N) of a population's ``RslRlVecEnv`` as member k's runner sees them (no stepping: the
-    population steps the whole env)."""
-
-    def __init__(self, env: RslRlVecEnv, k: int, num_envs: int):
-        self.env, self.num_envs, self.block = env, num_envs, slice(k * num_envs, (k + 1) * num_envs)
-        self.num_actions, self.max_episode_length, self.device = env.num_actions, env.max_episode_length, env.device
-        self.cfg, self.images, self.evaluation = env.cfg, env.images, None
-        self.obs_mirror, self.action_mirror = env.obs_mirror, env.action_mirror
-
-    @property
-    def episode_length_buf(self) -> torch.Tensor:
-        return self.env.episode_length_buf[self.block]
-
-    @episode_length_buf.setter
-    def episode_length_buf(self, value: torch.Tensor):
-        self.env.episode_length_buf[self.block] = value
-
-    def get_observations(self) -> TensorDict:
-        return self.env.get_observations()[self.block]
-
-
-class MemberLearner:
-    """Member k of a ``PopulationLearner`` as a ``Learner`` for its own ``TaskRunner``: its episode statistics, its
-    learning rate and action noise, its rsl-rl actor (the population's weights copied in by ``eval_mode``), and its
-    checkpoint state in rsl-rl's format (networks and a torch ``Adam`` state of its moments), so that its run folder
-    plays, resumes and exports as a solo run's. The population runs its iterations."""
-
-    def __init__(self, population: PopulationLearner, k: int):
-        self.population, self.k = population, k
-        self.env = MemberEnv(population.env, k, population.num_envs)
-        self.episodes, self.clock = MemberEpisodes(population, k), population.clock
-        self.actor, self.critic = population.actors[k], population.critics[k]
-        self.on_step = None
-
-    @property
-    def learning_rate(self) -> float:
-        return self.population.readout.learning_rates[self.k]
-
-    @property
-    def action_std(self) -> torch.Tensor:
-        return self.population.readout.action_std[self.k]
-
-    @property
-    def episode_steps(self) -> torch.Tensor:
-        return self.env.episode_length_buf
-
-    def begin(self, first_iteration: int, end_iteration: int):
-        """Nothing: the population's iterations are the member's."""
-
-    def iteration(self, obs: TensorDict, it: int):
-        raise RuntimeError("a member's iterations are its population's (PopulationLearner.iteration)")
-
-    def train_mode(self):
-        self.actor.train()
-        self.critic.train()
-
-    @torch.no_grad()
-    def eval_mode(self):
-        """The member's trained weights into its rsl-rl networks, in eval mode."""
-        actor_state, critic_state = self.population.ppo.model.member_state_dicts(self.k)
-        self.actor.load_state_dict(actor_state)
-        self.critic.load_state_dict(critic_state)
-        self.actor.eval()
-        self.critic.eval()
-
-    def state_dict(self) -> dict:
-        """rsl-rl's checkpoint of the member: its networks and its Adam state in the format of the optimizer of
-        ``SyncFreePPO`` (torch's ``Adam`` over the actor's then the critic's parameters), made without a torch
-        optimizer (the first one made imports ``torch._dynamo``: seconds, in the middle of training)."""
-        self.eval_mode()
-        ppo, k = self.population.ppo, self.k
-        moments = [ppo.model.member_parameters(k, tensor) for tensor in (ppo.exp_avg, ppo.exp_avg_sq)]
-        names = [(role, name) for role, network in (("actor", self.actor), ("critic", self.critic))
-                 for name, _ in network.named_parameters()]
-        step = ppo.adam_steps[k].to(torch.float32).cpu()
-        state = {i: {"step": step.clone(), "exp_avg": moments[0][role][name].clone(),
-                     "exp_avg_sq": moments[1][role][name].clone()} for i, (role, name) in enumerate(names)}
-        group = {"lr": ppo.learning_rate[k].item(), "betas": PPO_ADAM_BETAS, "eps": PPO_ADAM_EPS, "weight_decay": 0,
-                 "amsgrad": False, "maximize": False, "foreach": None, "capturable": False, "differentiable": False,
-                 "fused": None, "decoupled_weight_decay": False, "params": list(range(len(names)))}
-        self.train_mode()
-        return {"actor_state_dict": self.actor.state_dict(), "critic_state_dict": self.critic.state_dict(),
-                "optimizer_state_dict": {"state": state, "param_groups": [group]}}
-
-    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
-        """The networks of ``loaded`` (``load_cfg``: rsl-rl's choice of parts) into the member's rsl-rl networks;
-        the population's weights are not changed (a population starts afresh)."""
-        parts = load_cfg if load_cfg is not None else {"actor": True, "critic": True}
-        if parts.get("actor"):
-            self.actor.load_state_dict(loaded["actor_state_dict"], strict=strict)
-        if parts.get("critic"):
-            self.critic.load_state_dict(loaded["critic_state_dict"], strict=strict)
-
-    def release_graphs(self):
-        """Nothing: the graphs are the population's."""

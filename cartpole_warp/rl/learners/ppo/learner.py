@@ -17,17 +17,22 @@ from rsl_rl.utils import resolve_callable
 from tensordict import TensorDict
 
 from ....engine.streams import PhaseClock, TorchGraph
+from ....evaluation.rollouts import Policy
 from ....evaluation.statistics import EpisodeStats
 from ....settings.config import EnvConfig
 from ....wrappers.rsl_rl import RslRlVecEnv
 from ....wrappers.tensordict_import import mark_for_compile
 from ...config import TrainConfig
 from ...distributed import Ranks
+from ...policies import deterministic
+from .. import Readout
 from .sync_free import SyncFreePPO
 
 
 class PpoLearner:
-    """rsl-rl's PPO on ``env`` (``rl.learners.Learner``); ``alg`` is rsl-rl's algorithm object."""
+    """rsl-rl's PPO on ``env`` (``rl.learners.Learner``, of one member); ``alg`` is rsl-rl's algorithm object."""
+
+    num_members = 1
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
@@ -54,17 +59,23 @@ class PpoLearner:
     def actor(self) -> torch.nn.Module:
         return self.alg.get_policy()
 
-    @property
-    def learning_rate(self) -> float:
-        return self.alg.learning_rate
-
-    @property
-    def action_std(self) -> torch.Tensor:
-        return self.actor.output_std
+    def read(self, losses: dict) -> Readout:
+        return Readout.of_one(self.episodes.pop(all_processes=self.distributed), self.alg.learning_rate,
+                              self.actor.output_std, losses)
 
     @property
     def episode_steps(self) -> torch.Tensor:
-        return self.env.episode_length_buf
+        return self.env.episode_length_buf[None]
+
+    def retire(self, member: int):
+        """Nothing: the run ends with its one member."""
+
+    def member_actor(self, member: int = 0) -> torch.nn.Module:
+        self.alg.eval_mode()
+        return self.actor
+
+    def evaluation_policy(self) -> Policy:
+        return deterministic(self.actor)
 
     def train_mode(self):
         self.alg.train_mode()
@@ -108,11 +119,11 @@ class PpoLearner:
             return self._rollout(obs)
         return self._rollout_graph.with_inputs(obs, self._rollout)
 
-    def state_dict(self) -> dict:
+    def state_dict(self, member: int = 0) -> dict:
         """rsl-rl's networks and optimizer."""
         return self.alg.save()
 
-    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool, member: int = 0):
         self.alg.load(loaded, load_cfg, strict)
 
     def release_graphs(self):

@@ -1,9 +1,9 @@
 """``--learner sapg``: split and aggregate policy gradients (after SAPG: Singla, Agarwal and Pathak, ICML 2024).
 
 The run's env is ``agent.sapg.num_blocks`` blocks of ``env.num_envs`` envs, block k policy k's. Every policy learns
-rsl-rl's PPO on its own block, all as one batched computation (``population.PopulationLearner``); policy 0, the leader,
+rsl-rl's PPO on its own block, all as one batched computation (``batched_ppo.PopulationLearner``); policy 0, the leader,
 also learns from one follower's block per iteration (``LeaderFollowerPPO``). The leader is the run's policy: the
-runner judges, saves and exports it (``SapgLearner``), so the run's folder plays and exports as a PPO run's.
+loop judges, saves and exports it (``SapgLearner``), so the run's folder plays and exports as a PPO run's.
 """
 
 from __future__ import annotations
@@ -17,12 +17,15 @@ import functools
 import torch
 from tensordict import TensorDict
 
+from ....evaluation.rollouts import Policy
 from ....evaluation.statistics import EpisodeStats
 from ....settings.config import ConfigError, EnvConfig, refuse_present
 from ....wrappers.rsl_rl import RslRlVecEnv
 from ...config import TrainConfig
 from ...distributed import Ranks
-from ..batched_ppo.learner import Member, MemberLearner, PopulationLearner, batched_ppo_problems
+from ...policies import deterministic
+from .. import Readout
+from ..batched_ppo.learner import Member, PopulationLearner, batched_ppo_problems
 from ..batched_ppo.update import BatchedActorCritic, PopulationPPO
 
 OPTIMIZER_STATE = ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate")
@@ -99,11 +102,13 @@ class LeaderFollowerPPO(PopulationPPO):
 
 
 class SapgLearner:
-    """The leader of a ``LeaderFollowerPPO`` population as the runner's learner (``rl.learners.Learner``): the
-    runner's episodes, losses, learning rate and action noise are the leader's block's, its evaluations judge the
+    """The leader of a ``LeaderFollowerPPO`` population as the run's learner (``rl.learners.Learner``, of one member):
+    the run's episodes, losses, learning rate and action noise are the leader's block's, its evaluations judge the
     leader, and a checkpoint holds the leader in rsl-rl's format (``play.py`` and the exports read it as a PPO run's)
     with every policy's state besides (``sapg_state_dict``, which ``--resume`` restores). A follower whose networks
     go non-finite starts again from the leader's."""
+
+    num_members = 1
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
@@ -121,21 +126,13 @@ class SapgLearner:
             env, [member.config(cfg) for member in members], rsl_rl_cfg, seed,
             ppo_class=functools.partial(LeaderFollowerPPO, off_policy_coef=sapg.off_policy_coef,
                                         dual_clip=sapg.dual_clip))
-        self.leader = MemberLearner(self.population, 0)
-        self.env, self.clock, self.on_step = self.leader.env, self.population.clock, None
-        self.episodes, self.actor = self.leader.episodes, self.leader.actor
-
-    @property
-    def learning_rate(self) -> float:
-        return self.leader.learning_rate
-
-    @property
-    def action_std(self) -> torch.Tensor:
-        return self.leader.action_std
+        self.env, self.clock, self.on_step = env, self.population.clock, None
+        self.actor = self.population.actors[0]
+        """The leader's rsl-rl actor (its weights copied in by ``eval_mode``)."""
 
     @property
     def episode_steps(self) -> torch.Tensor:
-        return self.leader.episode_steps
+        return self.population.episode_steps[:1]
 
     def begin(self, first_iteration: int, end_iteration: int):
         """Nothing: every policy trains from the first iteration."""
@@ -146,11 +143,20 @@ class SapgLearner:
         obs, losses = self.population.iteration(obs, it)
         readout = self.population.read(losses)
         for k in range(1, self.population.num_members):
-            if not readout.finite[k]:
+            if readout.nonfinite[k]:
                 self._restart_follower(k)
                 print(f"follower {k}'s networks went non-finite in iteration {it + 1}: it starts again from the "
                       "leader's", flush=True)
         return obs, readout.losses[0]
+
+    def read(self, losses: dict) -> Readout:
+        """The leader's figures (``iteration`` read every policy's)."""
+        readout = self.population.readout
+        return Readout([readout.episodes[0]], [readout.learning_rates[0]], [readout.nonfinite[0]], [losses],
+                       [readout.action_std[0]])
+
+    def retire(self, member: int):
+        """Nothing: the run ends with its leader."""
 
     @torch.no_grad()
     def _restart_follower(self, k: int):
@@ -160,20 +166,27 @@ class SapgLearner:
         for name in OPTIMIZER_STATE:
             getattr(ppo, name)[k] = getattr(ppo, name)[0]
 
+    def member_actor(self, member: int = 0) -> torch.nn.Module:
+        return self.population.member_actor(0)
+
+    def evaluation_policy(self) -> Policy:
+        """The leader's, through its rsl-rl actor (``eval_mode`` copies its weights in)."""
+        return deterministic(self.actor)
+
     def train_mode(self):
-        self.leader.train_mode()
+        self.population.train_mode()
 
     def eval_mode(self):
-        self.leader.eval_mode()
+        self.population.member_actor(0)
 
-    def state_dict(self) -> dict:
+    def state_dict(self, member: int = 0) -> dict:
         """The leader's checkpoint as a PPO run's, and every policy's networks, normalisers and optimiser state."""
         ppo = self.population.ppo
         state = {"model": ppo.model.state_dict()} | {name: getattr(ppo, name) for name in OPTIMIZER_STATE}
-        return self.leader.state_dict() | {"sapg_state_dict": state}
+        return self.population.state_dict(0) | {"sapg_state_dict": state}
 
     @torch.no_grad()
-    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool, member: int = 0):
         """Every policy's state (``load_cfg`` None: a resume, of a sapg checkpoint only), or the leader's networks that
         ``load_cfg`` names (rsl-rl's choice of parts: the best policy loaded for the exports)."""
         ppo = self.population.ppo
@@ -185,11 +198,8 @@ class SapgLearner:
             for name in OPTIMIZER_STATE:
                 getattr(ppo, name).copy_(state[name])
         else:
-            actor_state, critic_state = ppo.model.member_state_dicts(0)
-            ppo.model.load_member_state_dicts(
-                0, loaded["actor_state_dict"] if load_cfg.get("actor") else actor_state,
-                loaded["critic_state_dict"] if load_cfg.get("critic") else critic_state)
-        self.leader.eval_mode()  # the leader's rsl-rl networks hold what was loaded
+            self.population.load_state_dict(loaded, load_cfg, strict, 0)
+        self.population.member_actor(0)  # the leader's rsl-rl networks hold what was loaded
 
     def release_graphs(self):
         self.population.release_graphs()

@@ -23,6 +23,7 @@ import torch
 from tensordict import TensorDict
 
 from ....engine.streams import PhaseClock
+from ....evaluation.rollouts import Policy
 from ....evaluation.statistics import EpisodeStats
 from ....gradients.rollout import DifferentiableRollout, Trajectory
 from ....settings.config import ConfigError, EnvConfig, refuse_present
@@ -30,7 +31,8 @@ from ....settings.deprecation import renamed
 from ....wrappers.rsl_rl import RslRlVecEnv
 from ...config import TrainConfig
 from ...distributed import Ranks
-from ...policies import build_networks
+from ...policies import build_networks, deterministic
+from .. import Readout
 
 
 def window_targets(rewards: torch.Tensor, next_values: torch.Tensor, terminated: torch.Tensor, ended: torch.Tensor,
@@ -68,7 +70,9 @@ def check_shac(cfg: TrainConfig):
 
 
 class ShacLearner:
-    """SHAC's iterations (module docstring) on ``env`` (``rl.learners.Learner``)."""
+    """SHAC's iterations (module docstring) on ``env`` (``rl.learners.Learner``, of one member)."""
+
+    num_members = 1
 
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
@@ -117,6 +121,19 @@ class ShacLearner:
     def eval_mode(self):
         self.actor.eval()
         self.critic.eval()
+
+    def member_actor(self, member: int = 0) -> torch.nn.Module:
+        self.eval_mode()
+        return self.actor
+
+    def evaluation_policy(self) -> Policy:
+        return deterministic(self.actor)
+
+    def retire(self, member: int):
+        """Nothing: the run ends with its one member."""
+
+    def read(self, losses: dict) -> Readout:
+        return Readout.of_one(self.episodes.pop(), self.learning_rate, self.action_std, losses)
 
     def release_graphs(self):
         """Nothing: the rollout's graphs belong to it and stay valid."""
@@ -239,9 +256,9 @@ class ShacLearner:
 
     @property
     def episode_steps(self) -> torch.Tensor:
-        return self.time_out_count
+        return self.time_out_count[None]
 
-    def state_dict(self) -> dict:
+    def state_dict(self, member: int = 0) -> dict:
         """The networks as rsl-rl's checkpoints hold them, and the learner's optimizers and target critic (under
         ``apg_state_dict``, the key of the checkpoints written before the learner's name was ``shac``)."""
         return {"actor_state_dict": self.actor.state_dict(), "critic_state_dict": self.critic.state_dict(),
@@ -249,7 +266,7 @@ class ShacLearner:
                                    "critic_optimizer": self.critic_optimizer.state_dict(),
                                    "target_critic": self.target_critic.state_dict()}}
 
-    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool):
+    def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool, member: int = 0):
         """``state_dict``'s parts (``load_cfg``: rsl-rl's choice, e.g. ``{"actor": True}``; None: all). A checkpoint of
         another learner, or only some of its networks: the target critic is the critic loaded."""
         parts = load_cfg if load_cfg is not None else {"actor": True, "critic": True}

@@ -1,0 +1,193 @@
+"""``TrainingLoop``: the one training loop, of one run or K (a population's members) trained at once by one learner
+(``rl.learners``), for any task.
+
+    loop = TrainingLoop(RslRlVecEnv(cfg.task_spec.env_class(cfg.env)), cfg, log_dir)
+    loop.learn(cfg.agent.max_iterations)       # loop.request_stop() ends it after the current iteration
+    loop.records[0].progress                   # the run's books (rl.record.RunRecord)
+
+After each of the learner's iterations (act, step, learn of every member still training): its figures per member
+(``Learner.read``), the evaluations' verdicts (``rl.evaluations``), then each member's books: progress, verdict,
+metrics and console line, stop decision, checkpoints. A member whose run stops (solved with ``stop_when_solved``,
+non-finite networks, a stop request) is retired from the learner; the others go on.
+"""
+
+from __future__ import annotations
+
+from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
+
+# isort: split
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import torch
+from tensordict import TensorDict
+
+from ..engine.env import BatchedEnv
+from ..evaluation.statistics import EpisodeStats, EpisodeSummary
+from ..settings.deprecation import renamed
+from ..wrappers.rsl_rl import RslRlVecEnv
+from .config import TrainConfig
+from .distributed import SINGLE_PROCESS, Ranks, join_process_group
+from .evaluations import Evaluations
+from .learners import Learner, Readout, learner_class
+from .policies import to_rsl_rl
+from .progress import Pace, format_duration
+from .record import RunRecord
+
+if TYPE_CHECKING:
+    from .learners.batched_ppo.learner import Member
+
+
+class TrainingLoop:
+    """The training of ``cfg`` on ``env``: one run (``members`` empty; by ``learner``, default: ``cfg.agent.learner``'s,
+    built here; ``ranks``: the processes it spans, default torchrun's), or one run per member of ``members`` by
+    ``learner`` (a population's, member k on block k of ``env``; each in its own process alone). ``log_dir`` None
+    writes nothing; else the run's folder, or the folder of the members' (``log_dir / member.name``). Evaluations run
+    on ``eval_env`` (K blocks for K members) or, where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``),
+    inside the training's step. ``rsl_rl_cfg`` is rsl-rl's ``train_cfg`` dict of ``cfg``; ``prefix`` comes before
+    each of the loop's own console lines."""
+
+    def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None,
+                 learner: Learner | None = None, ranks: Ranks | None = None, members: Sequence[Member] = (),
+                 prefix: str = ""):
+        self.env, self.config, self.device = env, cfg, env.device
+        self.ranks = ranks if ranks is not None else SINGLE_PROCESS if members else Ranks.from_environment()
+        self.rsl_rl_cfg = to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images)
+        if learner is None:
+            self.rsl_rl_cfg["multi_gpu"] = join_process_group(self.ranks, self.device)
+            learner = learner_class(cfg.agent.learner)(env, cfg, self.rsl_rl_cfg,
+                                                       EpisodeStats(env.device, env.max_episode_length))
+        self.learner = learner
+        runs = ([(member.config(cfg), None if log_dir is None else Path(log_dir) / member.name) for member in members]
+                or [(cfg, log_dir)])
+        self.evaluations = Evaluations(cfg, learner, [config.env.seed for config, _ in runs], eval_env, env.evaluation)
+        self.records = [RunRecord(config, learner, k, env, run_dir, self.rsl_rl_cfg, self.ranks, self.evaluations)
+                        for k, (config, run_dir) in enumerate(runs)]
+        self.members = list(members)
+        self.prefix = prefix
+        """Before each of the loop's own console lines (a population's process in a torchrun job: its rank)."""
+        for record in self.records:
+            record.report.console = not members  # a population prints its own line
+        if cfg.console == "rsl_rl":
+            learner.on_step = self.records[0].logger.process_env_step
+        self._stop_requested: str | None = None
+        self._span = (0, 0)
+        self.iteration_s: list[float] = []
+        """Each iteration's wall seconds, its evaluations, books and lines included."""
+        self.evaluation_s = 0.0
+        """The seconds spent in the evaluations' judge."""
+        self.on_iteration: Callable[[int, EpisodeSummary], None] | None = None
+        """Called after each iteration's console line (by the process that writes) with the iteration and the first
+        member's episodes' summary (the browser viewer's and ``--video``'s hook)."""
+
+    @property
+    def stop_requested(self) -> str | None:
+        """The reason of a pending ``request_stop`` (None: none)."""
+        return self._stop_requested
+
+    def request_stop(self, reason: str = "interrupted"):
+        """End every run after the iteration in progress (which is saved); in a torchrun job every process stops after
+        that same iteration."""
+        self._stop_requested = reason
+
+    @property
+    def stopped(self) -> bool:
+        """Whether every run has stopped, each for its ``stop_reason``."""
+        return all(record.stop_reason is not None for record in self.records)
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+        """``num_learning_iterations`` iterations, each run ending early on a stop request, non-finite networks or,
+        with ``stop_when_solved``, once solved. Non-finite states never reach the learner (the env resets them), so
+        there is no per-step NaN check; episode statistics stay on the device until the iteration ends."""
+        first = self.records[0].next_iteration
+        self._span = (first, first + num_learning_iterations)
+        obs = self._start(init_at_random_ep_len)
+        running, tick = list(range(len(self.records))), time.perf_counter()
+        for it in range(*self._span):
+            obs, losses = self.learner.iteration(obs, it)
+            running = self._after_iteration(it, self.learner.read(losses), running)
+            self.iteration_s.append(time.perf_counter() - tick)
+            tick = time.perf_counter()
+            if not running:
+                break
+        for k in running:
+            self.records[k].finish()
+
+    def _start(self, init_at_random_ep_len: bool) -> TensorDict:
+        """Every run's start: each member's time-out counters at random steps where asked (block by block, as its own
+        run would draw them); the env's observations out."""
+        first, end = self._span
+        if init_at_random_ep_len:
+            high = int(self.env.max_episode_length)
+            blocks = self.env.episode_length_buf.chunk(len(self.records))
+            self.env.episode_length_buf = torch.cat([torch.randint_like(block, high=high) for block in blocks])
+        self.learner.begin(first, end)
+        for record in self.records:
+            record.start(first, end, init_at_random_ep_len)
+        self.evaluations.last_iteration = [first - 1] * len(self.records)
+        self._start_s = self._tick = time.perf_counter()
+        return self.env.get_observations().to(self.device)
+
+    def _after_iteration(self, it: int, readout: Readout, running: list[int]) -> list[int]:
+        """The books of iteration ``it`` (the learner's ``readout``) of the ``running`` members; those still
+        running out."""
+        now = time.perf_counter()
+        steps = self.env.num_envs // len(self.records) * self.rsl_rl_cfg["num_steps_per_env"] * self.ranks.world_size
+        pace = Pace(steps / (now - self._tick), *self.learner.clock.seconds())
+        sound = [k for k in running if not readout.nonfinite[k]]
+        env_steps = {k: self.records[k].count(it, steps) for k in sound}
+        verdicts = self.evaluations.judge(it, readout.episodes, sound, [env_steps.get(k, 0) for k in
+                                                                         range(len(self.records))])
+        done = time.perf_counter()
+        timing, self._tick = (done - self._tick, done - now, self._start_s), done
+        self.evaluation_s += done - now
+        still = []
+        for k in running:
+            record = self.records[k]
+            if readout.nonfinite[k]:
+                record.stop_reason = "non-finite"
+                others = ", the others go on" if len(running) > 1 else ""
+                print(f"{self.prefix}  {self.members[k].name if self.members else 'the run'}: its networks went "
+                      f"non-finite in iteration {it + 1}; it ends here{others}", flush=True)
+            elif not record.after_iteration(it, readout.episodes[k], readout.losses[k], readout.learning_rates[k],
+                                            readout.action_std[k], pace, verdicts.get(k), timing,
+                                            self._stop_requested):
+                still.append(k)
+                continue
+            self.learner.retire(k)
+            record.finish()
+        if self.members:
+            self._population_lines(it, verdicts, still)
+        if self.on_iteration is not None and self.ranks.writes:
+            self.on_iteration(it, readout.episodes[0])
+        return still
+
+    def _population_lines(self, it: int, verdicts: dict, running: list[int]):
+        """A population's console: a line per verdict, then the population's line."""
+        metric = self.config.task_spec.play_metric
+        for k in sorted(verdicts):
+            entry = self.records[k].progress.history[-1]
+            print(f"{self.prefix}  {self.members[k].name}: eval of it {verdicts[k].iteration + 1}'s policy {metric} "
+                  f"{entry['evaluation'][metric] or 0.0:.3f}{': SOLVED' if entry['solved'] else ''}", flush=True)
+        records, elapsed_s = self.records, time.perf_counter() - self._start_s
+        first, end = self._span
+        solved = sum(record.progress.solved_at is not None for record in records)
+        rewards = [records[k].progress.history[-1]["mean_reward_per_step"] for k in running
+                   if records[k].progress.history[-1]["episodes"]]
+        spread = f" | reward/step {min(rewards):6.3f} .. {max(rewards):6.3f}" if rewards else ""
+        done = it + 1 - first
+        steps_per_s = done * self.env.num_envs * self.rsl_rl_cfg["num_steps_per_env"] / elapsed_s
+        eta = elapsed_s / done * (end - it - 1)
+        print(f"{self.prefix}it {it + 1:>{len(str(end))}}/{end} | {len(running)} running, {solved} solved of "
+              f"{len(records)}{spread} | {steps_per_s / 1e6:6.2f}M steps/s | ETA {format_duration(eta)}", flush=True)
+
+    def release_graphs(self):
+        """Free the learner's captured graphs (before the process group is destroyed); ``learn`` captures again."""
+        self.learner.release_graphs()
+
+
+__getattr__ = renamed(__name__, {"TaskRunner": "TrainingLoop", "CartpoleRunner": "TrainingLoop"})
+"""The loop's names while it was one run's (``TaskRunner``, before it ``CartpoleRunner``), until
+``settings.deprecation.REMOVED_IN``."""
