@@ -275,8 +275,10 @@ def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainA
             training.loop.on_iteration.close()
         if torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
-    if ranks.writes:  # summary.json is written: a Ctrl-C now only cuts these lines short
-        (report_population if members else report)(result, training.run_dir, checkpoint, timing_s)
+    if ranks.writes and members:  # the files are written: a Ctrl-C now only cuts these lines short
+        report_population(result, training.run_dir)
+    elif ranks.writes:
+        report(result, training.run_dir, checkpoint, timing_s)
     return 130 if training.interrupted else 0
 
 
@@ -338,7 +340,7 @@ def report(summary, run_dir: Path, checkpoint: Path | None, timing_s: dict[str, 
     print(f"seconds: {phases}" + (f"; {total:.1f} since the process started" if total is not None else ""))
 
 
-def report_population(result: dict, run_dir: Path, checkpoint: Path | None, timing_s: dict[str, float]):
+def report_population(result: dict, run_dir: Path):
     """The end of a population: its members' table, how many solved, its pace, and how to watch one."""
     members = result["members"]
     print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "

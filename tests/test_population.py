@@ -76,17 +76,21 @@ def test_changing_one_member_leaves_another_members_rollout_and_update_unchanged
     assert not torch.equal(base[2][2], changed[2][2]), "the changed member's update differs"
 
 
-def test_a_member_gone_non_finite_ends_alone_and_the_others_go_on(tmp_path, capsys):
-    training = population(tmp_path, [0, 1, 2], max_iterations=3, init_at_random_ep_len=False)
+def poison(training, member: int, at_iteration: int):
+    """``member``'s networks non-finite (NaN weights) after the learner's iteration ``at_iteration``."""
     iteration = training.loop.learner.iteration
 
     def poisoned(obs, it):
         result = iteration(obs, it)
-        if it == 0:
-            training.loop.learner.ppo.model.params.data[1] = float("nan")
+        if it == at_iteration:
+            training.loop.learner.ppo.model.params.data[member] = float("nan")
         return result
 
     training.loop.learner.iteration = poisoned
+
+def test_a_member_gone_non_finite_ends_alone_and_the_others_go_on(tmp_path, capsys):
+    training = population(tmp_path, [0, 1, 2], max_iterations=3, init_at_random_ep_len=False)
+    poison(training, member=1, at_iteration=0)
     result = training.run()
     statuses = {row["member"]: (row["status"], row["iterations"]) for row in result["members"]}
     assert statuses == {"seed0": ("completed", 3), "seed1": ("non-finite", 0), "seed2": ("completed", 3)}
@@ -94,6 +98,29 @@ def test_a_member_gone_non_finite_ends_alone_and_the_others_go_on(tmp_path, caps
     params = training.loop.learner.ppo.model.params.detach()
     assert torch.isfinite(params[[0, 2]]).all()
 
+
+def test_a_member_gone_non_finite_keeps_its_finite_checkpoints_and_stays_stopped(tmp_path):
+    """Member 1's networks go non-finite in iteration 1 (its second): model_0.pt, written after its first, keeps its
+    finite weights and the non-finite state is iteration 1's checkpoint; a second ``learn`` trains the others only."""
+    training = population(tmp_path, [0, 1, 2], max_iterations=2, init_at_random_ep_len=False, save_interval=1)
+    poison(training, member=1, at_iteration=1)
+    training.run()
+    member = tmp_path / "seed1"
+    first = torch.load(member / "model_0.pt", weights_only=False)["actor_state_dict"]
+    assert all(torch.isfinite(value).all() for value in first.values()), "a finite checkpoint was overwritten"
+    last = torch.load(member / "model_1.pt", weights_only=False)
+    assert last["iter"] == 1 and not all(torch.isfinite(v).all() for v in last["actor_state_dict"].values())
+    records = training.loop.records
+    training.loop.learn(1)
+    assert [record.progress.iterations for record in records] == [3, 1, 3]
+    assert [record.stop_reason for record in records] == [None, "non-finite", None]
+
+
+def test_a_loop_refuses_a_learner_of_another_number_of_members(tmp_path):
+    training = population(tmp_path, [0, 1])
+    cfg = training.loop.config
+    with pytest.raises(ValueError, match="a learner of 2 members cannot train 3 runs"):
+        TrainingLoop(training.env, cfg, None, learner=training.loop.learner, members=members_of([0, 1, 2]))
 
 def test_a_members_run_folder_plays_and_resumes_as_a_solo_run(tmp_path):
     result = call_main("train", "--seeds", "4", "9", "--num-envs", "16", "--max-iterations", "2", "--device", "cpu",

@@ -86,8 +86,11 @@ class OwnEnvsJudge:
             self._run = FirstEpisodesRun(self.env, self.learner.evaluation_policy())
             self.learner.train_mode()
 
-    def _hopeless(self, members: list[int]) -> bool:
-        """Whether every one of ``members`` has failed too many episodes for the rule (one read from the device)."""
+    def _hopeless(self, members: list[int], failed_in_all: int) -> bool:
+        """Whether every one of ``members`` has failed too many episodes for the rule (``failed_in_all``: the failed
+        episodes of every block; several members: one read from the device)."""
+        if self.num_members == 1:
+            return self.rule.hopeless(failed_in_all, self.num_envs)
         tally = self._run.tally
         failed = (tally.finished & ~tally.reached).view(self.num_members, self.num_envs).sum(dim=1).tolist()
         return all(self.rule.hopeless(failed[k], self.num_envs) for k in members)
@@ -95,7 +98,7 @@ class OwnEnvsJudge:
     def __call__(self, members: list[int]) -> dict[int, EpisodeSummary]:
         """Each of ``members``' verdict on its policy as the learner stands now."""
         self.prepare()
-        m, hopeless = self.num_envs, (lambda failed: self._hopeless(members))
+        m, hopeless = self.num_envs, (lambda failed: self._hopeless(members, failed))
         self.learner.eval_mode()
         try:
             if self.num_members == 1:

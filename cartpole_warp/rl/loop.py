@@ -16,6 +16,7 @@ from __future__ import annotations
 from ..wrappers import tensordict_import  # noqa: F401  (first: rsl-rl's tensordict without torch._dynamo)
 
 # isort: split
+import functools
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -43,7 +44,8 @@ if TYPE_CHECKING:
 class TrainingLoop:
     """The training of ``cfg`` on ``env``: one run (``members`` empty; by ``learner``, default: ``cfg.agent.learner``'s,
     built here; ``ranks``: the processes it spans, default torchrun's), or one run per member of ``members`` by
-    ``learner`` (a population's, member k on block k of ``env``; each in its own process alone). ``log_dir`` None
+    ``learner`` (a population's, member k on block k of ``env``; the members' runs span this process alone; ValueError
+    where the learner trains another number of members). ``log_dir`` None
     writes nothing; else the run's folder, or the folder of the members' (``log_dir / member.name``). Evaluations run
     on ``eval_env`` (K blocks for K members) or, where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``),
     inside the training's step. ``rsl_rl_cfg`` is rsl-rl's ``train_cfg`` dict of ``cfg``; ``prefix`` comes before
@@ -54,7 +56,8 @@ class TrainingLoop:
                  prefix: str = ""):
         self.env, self.config, self.device = env, cfg, env.device
         self.ranks = ranks if ranks is not None else SINGLE_PROCESS if members else Ranks.from_environment()
-        self.rsl_rl_cfg = to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images)
+        rsl_rl = functools.partial(to_rsl_rl, mirror=env.obs_mirror is not None, images=env.images)
+        self.rsl_rl_cfg = rsl_rl(cfg.agent)
         if learner is None:
             self.rsl_rl_cfg["multi_gpu"] = join_process_group(self.ranks, self.device)
             learner = learner_class(cfg.agent.learner)(env, cfg, self.rsl_rl_cfg,
@@ -62,9 +65,12 @@ class TrainingLoop:
         self.learner = learner
         runs = ([(member.config(cfg), None if log_dir is None else Path(log_dir) / member.name) for member in members]
                 or [(cfg, log_dir)])
+        if learner.num_members != len(runs):
+            raise ValueError(f"a learner of {learner.num_members} members cannot train {len(runs)} runs")
         self.evaluations = Evaluations(cfg, learner, [config.env.seed for config, _ in runs], eval_env, env.evaluation)
-        self.records = [RunRecord(config, learner, k, env, run_dir, self.rsl_rl_cfg, self.ranks, self.evaluations)
-                        for k, (config, run_dir) in enumerate(runs)]
+        self.records = [RunRecord(config, learner, k, env, run_dir,
+                                  rsl_rl(config.agent) if members else self.rsl_rl_cfg,  # a member's own settings
+                                  self.ranks, self.evaluations) for k, (config, run_dir) in enumerate(runs)]
         self.members = list(members)
         self.prefix = prefix
         """Before each of the loop's own console lines (a population's process in a torchrun job: its rank)."""
@@ -92,19 +98,18 @@ class TrainingLoop:
         that same iteration."""
         self._stop_requested = reason
 
-    @property
-    def stopped(self) -> bool:
-        """Whether every run has stopped, each for its ``stop_reason``."""
-        return all(record.stop_reason is not None for record in self.records)
-
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
-        """``num_learning_iterations`` iterations, each run ending early on a stop request, non-finite networks or,
-        with ``stop_when_solved``, once solved. Non-finite states never reach the learner (the env resets them), so
-        there is no per-step NaN check; episode statistics stay on the device until the iteration ends."""
-        first = self.records[0].next_iteration
+        """``num_learning_iterations`` iterations of the runs still going (a run that has stopped stays stopped), each
+        ending early on a stop request, non-finite networks or, with ``stop_when_solved``, once solved. Non-finite
+        states never reach the learner (the env resets them), so there is no per-step NaN check; episode statistics
+        stay on the device until the iteration ends."""
+        running = [k for k, record in enumerate(self.records) if record.stop_reason is None]
+        if not running:
+            return
+        first = self.records[running[0]].next_iteration
         self._span = (first, first + num_learning_iterations)
-        obs = self._start(init_at_random_ep_len)
-        running, tick = list(range(len(self.records))), time.perf_counter()
+        obs = self._start(running, init_at_random_ep_len)
+        tick = time.perf_counter()
         for it in range(*self._span):
             obs, losses = self.learner.iteration(obs, it)
             running = self._after_iteration(it, self.learner.read(losses), running)
@@ -115,17 +120,17 @@ class TrainingLoop:
         for k in running:
             self.records[k].finish()
 
-    def _start(self, init_at_random_ep_len: bool) -> TensorDict:
-        """Every run's start: each member's time-out counters at random steps where asked (block by block, as its own
-        run would draw them); the env's observations out."""
+    def _start(self, running: list[int], init_at_random_ep_len: bool) -> TensorDict:
+        """The ``running`` runs' start: each member's time-out counters at random steps where asked (block by block,
+        as its own run would draw them); the env's observations out."""
         first, end = self._span
         if init_at_random_ep_len:
             high = int(self.env.max_episode_length)
             blocks = self.env.episode_length_buf.chunk(len(self.records))
             self.env.episode_length_buf = torch.cat([torch.randint_like(block, high=high) for block in blocks])
         self.learner.begin(first, end)
-        for record in self.records:
-            record.start(first, end, init_at_random_ep_len)
+        for k in running:
+            self.records[k].start(first, end, init_at_random_ep_len)
         self.evaluations.last_iteration = [first - 1] * len(self.records)
         self._start_s = self._tick = time.perf_counter()
         return self.env.get_observations().to(self.device)
@@ -143,25 +148,25 @@ class TrainingLoop:
         done = time.perf_counter()
         timing, self._tick = (done - self._tick, done - now, self._start_s), done
         self.evaluation_s += done - now
-        still = []
         for k in running:
-            record = self.records[k]
             if readout.nonfinite[k]:
-                record.stop_reason = "non-finite"
+                self.records[k].stop_nonfinite(it)
                 others = ", the others go on" if len(running) > 1 else ""
                 print(f"{self.prefix}  {self.members[k].name if self.members else 'the run'}: its networks went "
                       f"non-finite in iteration {it + 1}; it ends here{others}", flush=True)
-            elif not record.after_iteration(it, readout.episodes[k], readout.losses[k], readout.learning_rates[k],
-                                            readout.action_std[k], pace, verdicts.get(k), timing,
-                                            self._stop_requested):
-                still.append(k)
-                continue
-            self.learner.retire(k)
-            record.finish()
+            else:
+                self.records[k].after_iteration(it, readout.episodes[k], readout.losses[k], readout.learning_rates[k],
+                                                readout.action_std[k], pace, verdicts.get(k), timing,
+                                                self._stop_requested)
+        still = [k for k in running if self.records[k].stop_reason is None]
         if self.members:
             self._population_lines(it, verdicts, still)
         if self.on_iteration is not None and self.ranks.writes:
             self.on_iteration(it, readout.episodes[0])
+        for k in running:
+            if k not in still:  # after the hook: a clip of the last iteration reaches its writer
+                self.learner.retire(k)
+                self.records[k].finish()
         return still
 
     def _population_lines(self, it: int, verdicts: dict, running: list[int]):

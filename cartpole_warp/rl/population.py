@@ -74,13 +74,11 @@ def members_of(seeds: list[int], vary: list[str] = ()) -> list[Member]:
     return [Member(seed, tuple(settings)) for settings in combinations for seed in seeds]
 
 
-def check_population(cfg: TrainConfig, members: list[Member]):
+def check_population(cfg: TrainConfig):
     """ConfigError in one line where ``cfg`` cannot train as a population (``batched_ppo_problems``)."""
     problems = {f"--learner {cfg.agent.learner} (populations train with PPO)": cfg.agent.learner != "ppo",
                 **batched_ppo_problems(cfg)}
     refuse_present(f"a population of {cfg.task} cannot train", problems)
-    if len(members) < 1:
-        raise ConfigError("a population needs at least one member")
 
 
 def member_rows(members: list[Member], summaries: list[RunSummary], metric: str) -> list[dict]:

@@ -56,17 +56,15 @@ class RunRecord:
         self.progress, self.next_iteration = Progress(), 0
         self.stop_reason: str | None = None
         """Why its training ended (None: it goes on)."""
-        self._span = (0, 0, 0)
+        self._span = (0, 0)
 
     @property
     def run_dir(self) -> Path | None:
         return Path(self.logger.log_dir) if self.logger.log_dir is not None else None
 
     def start(self, first_iteration: int, end_iteration: int, staggered_starts: bool):
-        """The metrics writer opened for iterations ``first_iteration`` to ``end_iteration`` (exclusive); the run goes
-        on."""
-        self._span = (first_iteration, first_iteration, end_iteration)
-        self.stop_reason = None
+        """The metrics writer opened for iterations ``first_iteration`` to ``end_iteration`` (exclusive)."""
+        self._span = (first_iteration, end_iteration)
         self.report.line.staggered_starts = staggered_starts and self.config.env.task.has_time_limit
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl says where it stores the code's git state
             self.logger.init_logging_writer()
@@ -79,12 +77,12 @@ class RunRecord:
 
     def after_iteration(self, it: int, stats: EpisodeSummary, losses: dict, learning_rate: float, action_std,
                         pace: Pace, judged: Judged | None, timing: tuple[float, float, float],
-                        wanted: str | None) -> bool:
+                        wanted: str | None):
         """Iteration ``it``'s books (after ``count``): its training episodes' ``stats`` and the learner's figures,
         ``judged`` (a verdict for this run, or None), ``timing``: the iteration's wall seconds, its evaluation's, and
         the training's start (``perf_counter``); ``wanted``: a stop asked for (None: none). The history, the verdict
-        (the best checkpoint), the report, a checkpoint every ``save_interval``; whether the run stops."""
-        first, _, end = self._span
+        (the best checkpoint), the report, the stop decision (``stop_reason``), a checkpoint every ``save_interval``."""
+        first, end = self._span
         iteration_s, evaluation_s, start_s = timing
         p = self.progress
         p.train_time_s += iteration_s
@@ -101,7 +99,6 @@ class RunRecord:
         self.next_iteration = it + 1
         if self.stop_reason is None and self.run_dir is not None and it % self.save_interval == 0:
             self.save(self.run_dir / f"model_{it}.pt")
-        return self.stop_reason is not None
 
     def _record(self, judged: Judged, solved: bool):
         """Enter a verdict: the first solved one as ``solved_at`` (the judged policy's iterations and env steps, the
@@ -123,21 +120,26 @@ class RunRecord:
             infos = progress.as_of(judged.iteration) if judged.state is not None else progress.infos()
             self._write(self.run_dir / BEST_CHECKPOINT, state, judged.iteration, infos)
 
+    def stop_nonfinite(self, it: int):
+        """The run stops: its networks went non-finite in iteration ``it``, which counts in none of its books; its
+        state is that iteration's (the last checkpoint, ``model_<it>.pt``, holds it: no earlier one is overwritten)."""
+        self.stop_reason, self.next_iteration = "non-finite", it + 1
+
     @property
-    def last_iteration(self) -> int:
-        """The iteration of the run's state: the last one done (0 before any)."""
+    def state_iteration(self) -> int:
+        """The iteration of the learner's state of the run: the last one done (0 before any)."""
         return max(self.next_iteration - 1, 0)
 
     def finish(self):
         """The last checkpoint; the metrics writer closed."""
         if self.run_dir is not None:
-            self.save(self.run_dir / f"model_{self.last_iteration}.pt")
+            self.save(self.run_dir / f"model_{self.state_iteration}.pt")
             self.logger.stop_logging_writer()
 
     def save(self, path: Path | str, infos: dict | None = None):
         """Write the run's state (``Learner.state_dict``'s), its last iteration and its progress to ``path``
         atomically."""
-        self._write(Path(path), self.learner.state_dict(self.member), self.last_iteration,
+        self._write(Path(path), self.learner.state_dict(self.member), self.state_iteration,
                     infos if infos is not None else self.progress.infos())
 
     def _write(self, path: Path, state: dict, iteration: int, infos: dict):

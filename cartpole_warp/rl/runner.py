@@ -15,7 +15,8 @@ def __getattr__(name: str) -> object:
     """``TaskRunner`` and ``CartpoleRunner`` (the loop: ``rl.loop.TrainingLoop``) and the policy functions that lived
     here (``load_policy``, ``to_rsl_rl``, ...: now in ``rl.policies``)."""
     if name in ("TaskRunner", "CartpoleRunner"):
-        warnings.warn(f"{__name__}.{name} is now {__package__}.loop.TrainingLoop (a run's books: its records); the old "
-                      f"name goes in {REMOVED_IN}", DeprecationWarning, stacklevel=2)
+        warnings.warn(f"{__name__}.{name} is now {__package__}.loop.TrainingLoop, and a run's books (progress, save, "
+                      f"load, policy, export) its records[0]; the old name goes in {REMOVED_IN}", DeprecationWarning,
+                      stacklevel=2)
         return importlib.import_module(f"{__package__}.loop").TrainingLoop
     return _moved(name)

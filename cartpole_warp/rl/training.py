@@ -133,7 +133,7 @@ class Training:
     torchrun job (``ranks``) a run's processes each train its own envs on their own GPU with seed + rank, and rank 0
     alone writes the run folder; a population's each train their share of the members, in rank 0's ``run_dir``.
     ``before_build`` is called once the training is checked (ConfigError where it cannot run or would not fit),
-    before anything is built."""
+    before its envs are built; ``setup_time_s`` counts from there."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None,
                  ranks: Ranks = SINGLE_PROCESS, timing_s: dict[str, float] | None = None,
@@ -143,12 +143,14 @@ class Training:
             raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
         self.prefix = f"rank {ranks.rank}: " if members and ranks.distributed else ""
         """Before each console line of a population's process."""
+        if members and resume_from is not None:
+            raise ConfigError("a population starts afresh; resume one member's run folder instead")
         self.all_members, self.members = list(members), ranks.share(list(members)) if members else []
-        start = time.perf_counter()
-        env_cfg = self._env_config()
+        env_cfg = self._process_env_config()
+        self.run_dir = Path(from_rank_zero(Path(run_dir), ranks) if members else run_dir)
         if before_build is not None:
             before_build()
-        self.run_dir = Path(from_rank_zero(Path(run_dir), ranks) if members else run_dir)
+        start = time.perf_counter()
         torch.manual_seed(env_cfg.seed)
         cfg.apply_torch_threads()
         self.task = cfg.task_spec
@@ -166,11 +168,11 @@ class Training:
                     save_config(record.run_dir, config)
         self.setup_time_s = time.perf_counter() - start
 
-    def _env_config(self) -> EnvConfig:
-        """This process's env config (ConfigError, before anything is built, where the training cannot run or would
-        not fit in memory): the learner's (``Learner.env_config``) of a run; a population's on this process's device,
-        judged on envs of its own where the task evaluates inside the step (``eval.in_step``: a task's GPU default for
-        long runs, made for one run's envs)."""
+    def _process_env_config(self) -> EnvConfig:
+        """This process's env config, once the training is checked (ConfigError where it cannot run or would not fit
+        in memory): the learner's (``Learner.env_config``) of a run; a population's on this process's device (its
+        process group joined), judged on envs of its own where the task evaluates inside the step (``eval.in_step``:
+        a task's GPU default for long runs, made for one run's envs: ``cfg`` says so)."""
         cfg, ranks = self.cfg, self.ranks
         if not self.members:
             env_cfg = learner_class(cfg.agent.learner).env_config(cfg, ranks.env_config(cfg.env,
@@ -182,7 +184,7 @@ class Training:
             print(f"{self.prefix}note: a population judges its members on envs of their own, not inside the "
                   "training's step (eval.in_step)", flush=True)
             cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, in_step=False))
-        check_population(cfg, self.all_members)
+        check_population(cfg)
         device = resolve_device(ranks.device(cfg.env.device, torch.cuda.device_count()))
         self.cfg = cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
         check_population_memory(cfg, len(self.members), device)
@@ -233,9 +235,11 @@ class Training:
 
     @property
     def interrupted(self) -> bool:
-        """Whether a signal (``run``; in a torchrun job, in any of the run's processes) stopped the training."""
-        return self.loop.stop_requested == "interrupted" or any(record.stop_reason == "interrupted"
-                                                                 for record in self.loop.records)
+        """Whether a signal stopped the training (``run``): this process's, for a population; a run's, in any of its
+        processes (its stop decision)."""
+        if self.members:
+            return self.loop.stop_requested == "interrupted"
+        return self.loop.records[0].stop_reason == "interrupted"
 
     def run(self) -> RunSummary | dict | None:
         """Train ``agent.max_iterations`` iterations (each run fewer on Ctrl-C or SIGTERM, which torchrun sends its

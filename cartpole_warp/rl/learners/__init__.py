@@ -36,7 +36,8 @@ rollout, which a PPO run need not load)."""
 
 @dataclass
 class Readout:
-    """Each member's figures after an iteration, on the host (``Learner.read``): member k's at index k."""
+    """Each member's figures after an iteration (``Learner.read``): member k's at index k; all but the action noise
+    (a tensor) read to the host."""
 
     episodes: list[EpisodeSummary]
     learning_rates: list[float]

@@ -199,7 +199,8 @@ class PopulationLearner:
     @torch.no_grad()
     def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool, member: int = 0):
         """The networks of ``loaded`` that ``load_cfg`` names (rsl-rl's choice of parts; None: both) into
-        ``member``'s (the best policy loaded for its exports; a population starts afresh, without its optimiser)."""
+        ``member``'s (the best policy loaded for its exports; a population starts afresh, without its optimiser).
+        Always strict: the batched layout takes whole state dicts (KeyError naming the keys that differ)."""
         parts = load_cfg if load_cfg is not None else {"actor": True, "critic": True}
         actor_state, critic_state = self.ppo.model.member_state_dicts(member)
         self.ppo.model.load_member_state_dicts(

@@ -1,4 +1,4 @@
-"""The runner (``rl/runner.py``): random episode starts, the phase clock, the policy play loads, the progress line."""
+"""The training loop (``rl/loop.py``): random episode starts, the phase clock, play's policy, the progress line."""
 
 import re
 import time
