@@ -120,7 +120,7 @@ def run_main():
 
 def sees_images(task: str) -> bool:
     """Whether registered task ``task`` observes camera frames."""
-    return "camera" in cartpole_warp.tasks.get(task).defaults.get("env", {})
+    return cartpole_warp.tasks.env_config(task).camera.enabled
 
 
 @pytest.fixture

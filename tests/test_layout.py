@@ -174,6 +174,7 @@ def test_a_task_naming_a_learner_by_its_old_name_gets_it_and_one_naming_no_learn
     import dataclasses
 
     from cartpole_warp import tasks
+    from cartpole_warp.rl.config import train_config
     from cartpole_warp.settings.config import ConfigError
 
     monkeypatch.setattr(tasks, "_TASKS", dict(tasks._TASKS))
@@ -181,7 +182,8 @@ def test_a_task_naming_a_learner_by_its_old_name_gets_it_and_one_naming_no_learn
     old = dataclasses.replace(base, name="an-old-task", learner_defaults={"apg": {"agent": {"max_iterations": 7}}})
     with pytest.warns(DeprecationWarning, match=r"learner_defaults\['apg'\] is now \['shac'\]"):
         registered = tasks.register(old)
-    assert registered.learner_defaults == {"shac": {"agent": {"max_iterations": 7}}}
+    assert set(registered.settings.for_learner) == {"shac"}
+    assert train_config("an-old-task", learner="shac").agent.max_iterations == 7
     assert tasks.get("an-old-task") is registered
     with pytest.raises(ConfigError, match="learner_defaults names 'sac', no learner"):
         tasks.register(dataclasses.replace(base, name="a-typo-task", learner_defaults={"sac": {}}))

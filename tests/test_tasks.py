@@ -16,7 +16,7 @@ import warp as wp
 from cartpole_warp import tasks
 from cartpole_warp.engine.kernels import END_NONE, TaskFunctions
 from cartpole_warp.evaluation.rollouts import rollout
-from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.config import device_defaults, train_config
 from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.settings.config import ConfigError, NonNegative
 from cartpole_warp.tasks.cart_base import CartpoleConfig, CartTaskEnv
@@ -55,8 +55,8 @@ def test_the_docs_task_table_lists_every_task_its_gymnasium_ids_its_budget_and_i
         ids = {gym_id.strip("`") for gym_id in rows[name][1].split(", ")}
         assert ids == set(tasks.get(name).gym_ids), name
         assert rows[name][2] == str(train_config(name).agent.max_iterations), name
-        assert (rows[name][3] != "-") == bool(tasks.get(name).gpu_defaults), name
-        assert (rows[name][4] != "-") == bool(tasks.get(name).cpu_defaults), name
+        assert (rows[name][3] != "-") == bool(device_defaults(tasks.get(name), "cuda")), name
+        assert (rows[name][4] != "-") == bool(device_defaults(tasks.get(name), "cpu")), name
 
 
 def test_a_preset_for_another_task_is_refused_alike_by_every_entry_point(tmp_path, run_main):
@@ -127,9 +127,13 @@ class HoldStillEnv(CartTaskEnv):
                               joint_forces=joint_forces)
 
 
+def hold_still_settings(cfg):
+    cfg.env.task.episode_length_s, cfg.agent.max_iterations = 1.0, 2
+
+
 HOLD_STILL = tasks.Task(name="test-hold-still", env_class=HoldStillEnv, summary="hold the cart at the centre",
                         solved=tasks.SolvedRule(min_reward_per_step=0.5), play_metric="mean_reward_per_step",
-                        defaults={"env": {"task": {"episode_length_s": 1.0}}, "agent": {"max_iterations": 2}},
+                        settings=tasks.TaskSettings(common=hold_still_settings),
                         gym_ids={"cartpole_warp/TestHoldStill-v0": None})
 
 
@@ -217,3 +221,50 @@ def test_a_tasks_gpu_settings_are_checked_when_it_registers(gpu_defaults, error)
     with pytest.raises(ConfigError, match=f"task 'gpu-typo': gpu_defaults.*{error}"):
         tasks.register(dataclasses.replace(swingup, name="gpu-typo", gym_ids={}, gpu_defaults=gpu_defaults))
     assert "gpu-typo" not in tasks.names()
+
+
+def test_a_tasks_typed_settings_are_checked_when_it_registers():
+    """A settings function that sets a field the config has not, a value its type refuses, or (a device's part) an env
+    setting is refused as the task registers, each named; the task is not registered."""
+    swingup = tasks.get("cartpole-swingup")
+
+    def misspelt(cfg):
+        cfg.agent.algorithm.entropy_coeff, cfg.env.task.reset_pole_angel_rad, cfg.env.sim.decimation = 0.01, 0.1, 0
+
+    def env_on_gpu(cfg):
+        cfg.env.num_envs = 8
+
+    with pytest.raises(ConfigError) as raised:
+        tasks.register(dataclasses.replace(swingup, name="typed-typo", gym_ids={},
+                                           settings=tasks.TaskSettings(common=misspelt)))
+    message = str(raised.value)
+    assert message.startswith("task 'typed-typo': settings.common")
+    assert "unknown config key 'agent.algorithm.entropy_coeff'" in message
+    assert "unknown config key 'env.task.reset_pole_angel_rad'" in message and "env.sim.decimation: " in message
+    with pytest.raises(ConfigError, match="'typed-gpu': settings.on_gpu: env settings do not depend on the device"):
+        tasks.register(dataclasses.replace(swingup, name="typed-gpu", gym_ids={},
+                                           settings=tasks.TaskSettings(on_gpu=env_on_gpu)))
+    assert "typed-typo" not in tasks.names() and "typed-gpu" not in tasks.names()
+
+
+def test_a_task_declared_with_the_dicts_of_before_resolves_as_its_typed_twin(monkeypatch):
+    """The swing-up's settings written as the nested dicts tasks gave before ``TaskSettings`` (with a warning, until
+    0.2.0) resolve to the same config as its typed settings, on each device and with each learner."""
+    monkeypatch.setattr(tasks, "_TASKS", dict(tasks._TASKS))
+    swingup = tasks.get("cartpole-swingup")
+    with pytest.warns(DeprecationWarning, match="is now Task\\(settings=TaskSettings"):
+        tasks.register(dataclasses.replace(
+            swingup, name="dict-swingup", gym_ids={}, settings=tasks.TaskSettings(),
+            defaults={"env": {"sim": {"physics_dt": 0.01, "decimation": 2}},
+                      "agent": {"max_iterations": 500, "num_steps_per_env": 16,
+                                "algorithm": {"entropy_coef": 0.02, "symmetry": False, "num_learning_epochs": 2},
+                                "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},
+            gpu_defaults={"agent": {"algorithm": {"num_mini_batches": 4}}, "eval": {"max_interval": 50}},
+            cpu_defaults={"agent": {"actor": {"hidden_dims": [16, 16]}, "critic": {"hidden_dims": [16, 16]}}},
+            learner_defaults={"shac": {"agent": {"max_iterations": 1100, "actor": {"hidden_dims": [64, 64]},
+                                                 "critic": {"hidden_dims": [64, 64]}}}}))
+    for device in ("cpu", "cuda"):
+        for learner in (None, "shac", "sapg"):
+            typed = dataclasses.asdict(train_config(swingup.name, device=device, learner=learner))
+            dicts = dataclasses.asdict(train_config("dict-swingup", device=device, learner=learner))
+            assert dicts == typed | {"task": "dict-swingup"}, (device, learner)

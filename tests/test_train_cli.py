@@ -23,7 +23,7 @@ from onnx.reference import ReferenceEvaluator
 from PIL import Image
 
 from cartpole_warp import tasks
-from cartpole_warp.rl.config import train_config
+from cartpole_warp.rl.config import device_defaults, train_config
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["--num-envs", "64", "--logger", "tensorboard", "--agent.save-interval", "1"]
@@ -393,7 +393,8 @@ def test_a_typod_flag_is_one_line_with_the_spelling_the_help_shows(run_main, tra
 
 
 def dotted(settings: dict, prefix: str = "") -> set[str]:
-    """The dotted names of a task's nested settings (``Task.gpu_defaults``: ``agent.algorithm.num_mini_batches``)."""
+    """The dotted names of a task's nested settings (``rl.config.device_defaults``'s:
+    ``agent.algorithm.num_mini_batches``)."""
     return set().union(*(dotted(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}"}
                          for key, value in settings.items()))
 
@@ -412,9 +413,10 @@ def test_help_says_whose_defaults_it_shows_and_what_sets_them(run_main):
     swingup = tasks.get("cartpole-swingup")
     for device, other in (("cpu", "cuda"), ("cuda", "cpu")):
         text = help_text("--task", swingup.name, "--device", device)
-        assert f"(default: {swingup.defaults['agent']['max_iterations']}; set by --task and --learner)" in text
+        assert f"(default: {train_config(swingup.name).agent.max_iterations}; set by --task and --learner)" in text
         changed = text.split(f"(default: {device}; {other} changes ", 1)[1].split(")", 1)[0].split(", ")
-        assert set(changed) == dotted(swingup.gpu_defaults) | dotted(swingup.cpu_defaults), changed
+        both = dotted(device_defaults(swingup, "cuda")) | dotted(device_defaults(swingup, "cpu"))
+        assert set(changed) == both, changed
 
 
 @pytest.mark.parametrize("args, message", [

@@ -2,7 +2,7 @@
 (``rl.policies.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
 shows.
 
-The defaults are the dataclass defaults, then the task's own (``Task.defaults``). A preset (``configs/<name>.yaml``)
+The defaults are the dataclass defaults, then the task's own (``tasks.TaskSettings``: ``train_config``). A preset (``configs/<name>.yaml``)
 holds partial overrides of ``TrainConfig`` (sections ``env``, ``agent`` and the top-level fields); ``train.py`` and
 ``play.py`` take every field as a flag (``--agent.algorithm.entropy-coef 0.01``).
 """
@@ -10,8 +10,7 @@ holds partial overrides of ``TrainConfig`` (sections ``env``, ``agent`` and the 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
-from typing import Generic
+from dataclasses import dataclass
 
 from .. import tasks
 from ..settings.agent import (
@@ -27,7 +26,6 @@ from ..settings.agent import (
 from ..settings.config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
-    EnvConfig,
     Name,
     TaskT,
     checked,
@@ -36,19 +34,17 @@ from ..settings.config import (
     overrides_dict,
     require,
 )
-from ..settings.presets import RunSettings
+from ..settings.presets import TrainSettings, apply_overrides, changes
 
 
 @dataclass(kw_only=True)
-class TrainConfig(RunSettings, Generic[TaskT]):
+class TrainConfig(TrainSettings[TaskT]):
     """Everything ``train.py`` needs: the task, its env, rsl-rl's runner configuration and where the run goes."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 
-    env: EnvConfig[TaskT]
     task: Name = tasks.DEFAULT_TASK
     """The registered task (``cartpole_warp.tasks.names()``), which picks its settings."""
-    agent: RunnerConfig = field(default_factory=RunnerConfig)
 
     @property
     def task_spec(self) -> tasks.Task:
@@ -84,24 +80,47 @@ class TrainConfig(RunSettings, Generic[TaskT]):
 
 def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, device: str | None = None,
                  learner: str | None = None) -> TrainConfig:
-    """TrainConfig of ``task``: its env from ``tasks.env_config`` (the one path that merges and checks an env, and
-    refuses a preset for another task; on ``device`` where given), then the dataclass defaults, the task's (with its
-    ``gpu_defaults`` or ``cpu_defaults`` by the env's device, then its ``learner_defaults`` of the learner ``learner``
-    (the flag) or the preset names) and the whole preset again, so that a preset's setting wins over the task's and the
-    learner's choices (flags may still change it: ``validate`` after them)."""
-    preset_data = tasks.preset_overrides(task, preset)  # read once: the env's section and the rest
-    env = tasks.env_config(task, preset, preset_data=preset_data, device=device)
-    cls = TrainConfig[type(env.task)]
-    base = cls(env=env, task=task)
-    rest = {key: value for key, value in base.task_spec.defaults.items() if key != "env"}
-    data = merge(dataclasses.asdict(base), rest)
-    data = merge(data, device_defaults(base.task_spec, env.device))
+    """TrainConfig of ``task``, resolved in one pass: the dataclass defaults; the task's settings
+    (``tasks.TaskSettings``: every run's, then its device's); where a learner is chosen (``learner``, the flag, or the
+    one the preset names), the learner's own defaults (``settings.agent.LEARNER_DEFAULTS``) and what the task tunes
+    for it; then the preset (ConfigError for another task's), so that its settings win over the task's and the
+    learner's, and ``device``; then one check of every value (flags may still change them: ``validate`` after them)."""
+    preset_data = tasks.preset_overrides(task, preset)
+    spec = tasks.get(task)
+    cfg = tasks.fresh_settings(spec)
+    run_device = device or preset_data.get("env", {}).get("device")
     chosen = learner or preset_data.get("agent", {}).get("learner")
+    _apply(cfg, spec.settings.common)
+    _apply(cfg, spec.settings.for_device(run_device or cfg.env.device))
     if chosen is not None:
-        data = merge(merge(data, learner_defaults(base.task_spec, chosen)), {"agent": {"learner": chosen}})
-    if preset is not None:  # the preset over the task's and the learner's choices, its env section too
+        apply_overrides(cfg, LEARNER_DEFAULTS.get(chosen, {}))
+        _apply(cfg, spec.settings.for_learner.get(chosen))
+        cfg.agent.learner = chosen
+    data = dataclasses.asdict(cfg)
+    if preset is not None:
         data = merge(data, overrides_dict(preset_data, f"preset {preset!r}:"))
-    return from_dict(cls, data, f"task {task!r}" + (f", preset {preset!r}" if preset else ""))
+    if device is not None:
+        data["env"]["device"] = device
+    where = f"task {task!r}" + (f", preset {preset!r}" if preset else "")
+    resolved = from_dict(TrainConfig[spec.env_class.config_class], data, where)
+    resolved.env.validate()
+    return resolved
+
+
+def _apply(cfg: TrainSettings, configure: tasks.Configure | None):
+    if configure is not None:
+        configure(cfg)
+
+
+def changed_by(task: tasks.Task, part: tasks.Configure | None, before: list) -> dict:
+    """What ``part`` of ``task``'s settings changes (nested overrides) in a fresh config once ``before`` (parts, or
+    dicts of overrides) have been applied to it."""
+    cfg = tasks.fresh_settings(task)
+    for earlier in before:
+        apply_overrides(cfg, earlier) if isinstance(earlier, dict) else _apply(cfg, earlier)
+    unchanged = dataclasses.asdict(cfg)
+    _apply(cfg, part)
+    return changes(unchanged, dataclasses.asdict(cfg))
 
 
 def on_gpu(device: str) -> bool:
@@ -110,8 +129,9 @@ def on_gpu(device: str) -> bool:
 
 
 def device_defaults(task: tasks.Task, device: str) -> dict:
-    """The task's overrides for ``device``: ``Task.gpu_defaults`` on a GPU, ``Task.cpu_defaults`` on a CPU."""
-    return task.gpu_defaults if on_gpu(device) else task.cpu_defaults
+    """What the task's settings for ``device`` change (``TaskSettings.for_device``), as nested overrides; {} for
+    nothing."""
+    return changed_by(task, task.settings.for_device(device), [task.settings.common])
 
 
 def device_settings(cfg: TrainConfig) -> dict[str, object]:
@@ -126,9 +146,10 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
 
 
 def learner_defaults(task: tasks.Task, learner: str) -> dict:
-    """What ``learner`` changes in ``task``'s defaults: its own (``settings.agent.LEARNER_DEFAULTS``), then what the
-    task tunes for it (``Task.learner_defaults``)."""
-    return merge(LEARNER_DEFAULTS.get(learner, {}), task.learner_defaults.get(learner, {}))
+    """What ``learner`` changes in ``task``'s runs: its own defaults (``settings.agent.LEARNER_DEFAULTS``), then what
+    the task tunes for it (``TaskSettings.for_learner``), as nested overrides."""
+    own = LEARNER_DEFAULTS.get(learner, {})
+    return merge(own, changed_by(task, task.settings.for_learner.get(learner), [task.settings.common, own]))
 
 
 def learner_settings(cfg: TrainConfig) -> dict[str, object]:

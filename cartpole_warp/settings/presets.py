@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Generic, Literal
 
 import yaml
 
@@ -19,9 +19,11 @@ from .config import (
     NO_UNKNOWN_KEYS,
     ConfigError,
     Count,
+    EnvConfig,
     Flag,
     Name,
     NonNegativeInt,
+    TaskT,
     config_errors,
     merge,
     overrides_dict,
@@ -80,6 +82,55 @@ class RunSettings:
             import torch
 
             torch.set_num_threads(self.torch_threads)
+
+
+@dataclass(kw_only=True)
+class TrainSettings(RunSettings, Generic[TaskT]):
+    """A training config's settings (``rl.config.TrainConfig``'s fields), as a task's settings functions set them in
+    place (``tasks.TaskSettings``): the env, the task's name, the agent (rsl-rl's runner, ``settings.agent``) and
+    the run's fields."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    env: EnvConfig[TaskT]
+    task: Name = ""
+    """The registered task's name (``rl.config.TrainConfig`` gives its default)."""
+    agent: RunnerConfig = field(default_factory=RunnerConfig)
+
+
+def apply_overrides(config: object, overrides: dict) -> None:
+    """Set ``overrides`` (nested dicts, as a preset's sections) on the dataclass tree ``config`` in place: a dict
+    into a field holding a dataclass recurses, any other value replaces the field's."""
+    for key, value in overrides.items():
+        current = getattr(config, key)
+        if isinstance(value, dict) and dataclasses.is_dataclass(current):
+            apply_overrides(current, value)
+        else:
+            setattr(config, key, value)
+
+
+def stray_fields(config: object, prefix: str = "") -> list[str]:
+    """The dotted names of the attributes set on the dataclass tree ``config`` that none of its dataclasses has as a
+    field (a misspelt setting written by attribute)."""
+    names = {f.name for f in dataclasses.fields(config)}
+    stray = [f"{prefix}{name}" for name in vars(config) if name not in names and not name.startswith("__")]
+    for name in sorted(names):
+        value = getattr(config, name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            stray += stray_fields(value, f"{prefix}{name}.")
+    return stray
+
+
+def changes(before: dict, after: dict) -> dict:
+    """The nested leaves of ``after`` (``dataclasses.asdict`` of a config) whose values differ from ``before``'s."""
+    out = {}
+    for key, value in after.items():
+        if isinstance(value, dict) and isinstance(before.get(key), dict):
+            if inner := changes(before[key], value):
+                out[key] = inner
+        elif before.get(key) != value:
+            out[key] = value
+    return out
 
 
 @dataclass

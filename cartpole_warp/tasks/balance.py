@@ -11,7 +11,8 @@ import warp as wp
 
 from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from ..settings.config import Finite, NonNegative, Positive, require
-from . import SolvedRule, Task, register
+from ..settings.presets import TrainSettings
+from . import SolvedRule, Task, TaskSettings, register
 from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
@@ -110,6 +111,12 @@ class CartpoleBalanceEnv(CartTaskEnv):
                               joint_forces=push_cart)
 
 
+def cpu_settings(cfg: TrainSettings):
+    """On a CPU, 8 x 8 networks: there their products and ELUs cost as much as the env, and 8 x 8 solved seeds 0-9 as
+    32 x 32 did, sooner (docs/benchmarks.md)."""
+    cfg.agent.actor.hidden_dims, cfg.agent.critic.hidden_dims = [8, 8], [8, 8]
+
+
 TASK = register(Task(
     name="cartpole-balance",
     env_class=CartpoleBalanceEnv,
@@ -117,7 +124,5 @@ TASK = register(Task(
     solved=SolvedRule(min_reward_per_step=0.9, min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
     gym_ids={"cartpole_warp/Cartpole-v0": None, "cartpole_warp/CartpoleTutorial-v0": "tutorial"},
-    # on a CPU the networks' products and ELUs cost as much as the env: 8 x 8 solved seeds 0-9 as 32 x 32 did, sooner
-    # (docs/benchmarks.md)
-    cpu_defaults={"agent": {"actor": {"hidden_dims": [8, 8]}, "critic": {"hidden_dims": [8, 8]}}},
+    settings=TaskSettings(on_cpu=cpu_settings),
 ))

@@ -6,7 +6,7 @@ from typing import Any
 
 import warp as wp
 
-from . import DENSE_PATH, SolvedRule, balance, register
+from . import SolvedRule, TaskSettings, balance, dense_path, register
 from .cart_base import sparse_reward
 
 
@@ -27,5 +27,5 @@ register(dataclasses.replace(
     play_metric="mean_reward_per_step",
     summary="keep the pole up, rewarded only in dm_control's sparse band (cart within 0.25 m, pole within 5.7 deg)",
     solved=SolvedRule(min_reward_per_step=0.8, min_time_limit_fraction=0.95),
-    gym_ids={"cartpole_warp/CartpoleBalanceSparse-v0": None}, defaults=DENSE_PATH,
-    cpu_defaults={}))  # the balance's CPU networks were not measured on the sparse reward
+    gym_ids={"cartpole_warp/CartpoleBalanceSparse-v0": None},
+    settings=TaskSettings(common=dense_path)))  # the balance's CPU networks were not measured on the sparse reward

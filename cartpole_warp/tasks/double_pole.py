@@ -15,7 +15,8 @@ import warp as wp
 
 from ..engine.kernels import END_NONE, FIRST_TASK_END, TaskFunctions
 from ..settings.config import Finite, Name, NonNegative, Positive, require
-from . import SolvedRule, Task, register
+from ..settings.presets import TrainSettings
+from . import SolvedRule, Task, TaskSettings, register
 from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 CART_OUT = wp.constant(FIRST_TASK_END)
@@ -149,13 +150,18 @@ class CartDoublePoleEnv(CartTaskEnv):
                               joint_forces=push_cart)
 
 
+def settings(cfg: TrainSettings):
+    """16 steps per env and 300 iterations; both networks normalise their observations."""
+    cfg.agent.num_steps_per_env, cfg.agent.max_iterations = 16, 300
+    cfg.agent.actor.obs_normalization = cfg.agent.critic.obs_normalization = True
+
+
 TASK = register(Task(
     name="cart-double-pole-balance",
     env_class=CartDoublePoleEnv,
     summary="keep two poles in a chain upright on a cart (Newton's cart + double pendulum, 40 N cart, 10 s episodes)",
     solved=SolvedRule(min_time_limit_fraction=0.95),
     play_metric="time_limit_fraction",
-    defaults={"agent": {"num_steps_per_env": 16, "max_iterations": 300,
-                        "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},
+    settings=TaskSettings(common=settings),
     gym_ids={"cartpole_warp/CartDoublePole-v0": None},
 ))

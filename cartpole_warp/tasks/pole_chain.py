@@ -5,8 +5,9 @@ docstring."""
 
 from dataclasses import dataclass, replace
 
-from ..settings.config import Name, merge
-from . import DENSE_PATH, SolvedRule, register, swingup
+from ..settings.config import Name
+from ..settings.presets import TrainSettings
+from . import Configure, SolvedRule, TaskSettings, compose, dense_path, register, swingup
 
 
 @dataclass
@@ -62,23 +63,32 @@ class CartThreePoleSwingupEnv(CartTwoPoleSwingupEnv):
     functions = swingup.swingup_functions(3)
 
 
-for env_class, words, min_reward_per_step, width, steps_per_env, gpu_defaults, gym_id in (
-        (CartTwoPoleSwingupEnv, "two", 0.7, 128, 32, {}, "CartTwoPoleSwingup"),
-        (CartThreePoleSwingupEnv, "three", 0.5, 256, 16, {"eval": {"in_step": True}}, "CartThreePoleSwingup")):
-    # thousands of iterations: an evaluation at most every 100, so that evaluations stay a small part of training;
-    # wider networks than the single pole's 32 x 32, with which the chains levelled off, and for two poles 32 steps
-    # per env, with which every seed solved; on a GPU the three poles evaluate inside the training's step, where
-    # their many evaluations cost more than the extra envs and the verdict's wait (docs/benchmarks.md); the dense path
-    # (DENSE_PATH): on the tile path, a 2.7x faster three-pole step, the two poles' seed 0 did not solve
-    networks = {"hidden_dims": [width, width]}
+def chain_settings(width: int, steps_per_env: int) -> Configure:
+    """A chain's settings over the single pole's: thousands of iterations, an evaluation at most every 100 (so that
+    evaluations stay a small part of training), ``width`` x ``width`` networks (the single pole's 32 x 32 levelled
+    off on the chains), ``steps_per_env`` steps per env, and the dense path (``tasks.dense_path``: on the tile path,
+    a 2.7x faster three-pole step, the two poles' seed 0 did not solve)."""
+    def settings(cfg: TrainSettings):
+        dense_path(cfg)
+        cfg.agent.max_iterations, cfg.agent.num_steps_per_env, cfg.eval.max_interval = 15000, steps_per_env, 100
+        cfg.agent.actor.hidden_dims, cfg.agent.critic.hidden_dims = [width, width], [width, width]
+
+    return compose(swingup.settings, settings)
+
+
+def evaluate_in_step(cfg: TrainSettings):
+    """On a GPU the three poles evaluate inside the training's step, where their many evaluations cost more than the
+    extra envs and the verdict's wait (docs/benchmarks.md)."""
+    cfg.eval.in_step = True
+
+
+for env_class, words, min_reward_per_step, width, steps_per_env, on_gpu, gym_id in (
+        (CartTwoPoleSwingupEnv, "two", 0.7, 128, 32, None, "CartTwoPoleSwingup"),  # 32 steps: every seed solved
+        (CartThreePoleSwingupEnv, "three", 0.5, 256, 16, evaluate_in_step, "CartThreePoleSwingup")):
     register(replace(
         swingup.TASK, name=f"cart-{words}-pole-swingup", env_class=env_class,
         summary=f"swing a chain of {words} poles up and hold it (dm_control's {words}_poles, 10 N cart, 10 s episodes)",
         solved=SolvedRule(min_reward_per_step=min_reward_per_step, full_episodes_only=True),
-        defaults=merge(swingup.TASK.defaults, {**DENSE_PATH,
-                                               "agent": {"max_iterations": 15000, "num_steps_per_env": steps_per_env,
-                                                         "actor": networks, "critic": networks},
-                                               "eval": {"max_interval": 100}}),
-        gpu_defaults=gpu_defaults, cpu_defaults={},  # the single pole's were not measured on the chains
-        learner_defaults={},  # the swing-up's were not measured here
+        # the single pole's device and learner settings were not measured on the chains
+        settings=TaskSettings(common=chain_settings(width, steps_per_env), on_gpu=on_gpu),
         gym_ids={f"cartpole_warp/{gym_id}-v0": None}))

@@ -12,7 +12,8 @@ import warp as wp
 
 from ..engine.kernels import END_NONE, TaskFunctions
 from ..settings.config import Finite, NonNegative, Positive
-from . import SolvedRule, Task, register
+from ..settings.presets import TrainSettings
+from . import SolvedRule, Task, TaskSettings, register
 from .cart_base import CartpoleConfig, CartTaskEnv, push_cart
 
 
@@ -141,26 +142,42 @@ class CartpoleSwingupEnv(CartTaskEnv):
     functions = swingup_functions(1)
 
 
+def settings(cfg: TrainSettings):
+    """dm_control's 100 Hz physics at 50 Hz control; 16 steps per env, 500 iterations; symmetry off (it did not help
+    the swing-up, and a seed that solves without it did not with it); two epochs (fewer iterations to solved,
+    docs/benchmarks.md); both networks normalise their observations."""
+    cfg.env.sim.physics_dt, cfg.env.sim.decimation = 0.01, 2
+    agent = cfg.agent
+    agent.max_iterations, agent.num_steps_per_env = 500, 16
+    agent.algorithm.entropy_coef, agent.algorithm.symmetry, agent.algorithm.num_learning_epochs = 0.02, False, 2
+    agent.actor.obs_normalization = agent.critic.obs_normalization = True
+
+
+def gpu_settings(cfg: TrainSettings):
+    """On a GPU, half the mini-batches (a cheaper iteration) and an evaluation at least every 50 iterations instead of
+    25 (an evaluation costs several iterations there; docs/benchmarks.md)."""
+    cfg.agent.algorithm.num_mini_batches, cfg.eval.max_interval = 4, 50
+
+
+def cpu_settings(cfg: TrainSettings):
+    """On a CPU, 16 x 16 networks: each iteration cheaper and no more of them (seeds 0-9; docs/benchmarks.md)."""
+    cfg.agent.actor.hidden_dims, cfg.agent.critic.hidden_dims = [16, 16], [16, 16]
+
+
+def shac_settings(cfg: TrainSettings):
+    """Analytic policy gradients: wider networks than the learner's own (fewer iterations to solved), a budget of 1.5x
+    the slowest seed that solved (docs/benchmarks.md)."""
+    cfg.agent.max_iterations = 1100
+    cfg.agent.actor.hidden_dims, cfg.agent.critic.hidden_dims = [64, 64], [64, 64]
+
+
 TASK = register(Task(
     name="cartpole-swingup",
     env_class=CartpoleSwingupEnv,
     summary="swing the pole up from hanging down and hold it (dm_control's swing-up, 10 N cart, 10 s episodes)",
     solved=SolvedRule(min_reward_per_step=0.8, full_episodes_only=True),
     play_metric="full_reward_per_step",
-    defaults={"env": {"sim": {"physics_dt": 0.01, "decimation": 2}},
-              # symmetry off: it did not help the swing-up, and a seed that solves without it did not with it; two
-              # epochs: fewer iterations to solved (docs/benchmarks.md)
-              "agent": {"max_iterations": 500, "num_steps_per_env": 16,
-                        "algorithm": {"entropy_coef": 0.02, "symmetry": False, "num_learning_epochs": 2},
-                        "actor": {"obs_normalization": True}, "critic": {"obs_normalization": True}}},
-    # a GPU: half the mini-batches (a cheaper iteration), and an evaluation at least every 50 iterations instead of
-    # 25 (an evaluation costs several iterations there; docs/benchmarks.md)
-    gpu_defaults={"agent": {"algorithm": {"num_mini_batches": 4}}, "eval": {"max_interval": 50}},
-    # a CPU: 16 x 16 networks, each iteration cheaper and no more of them (seeds 0-9; docs/benchmarks.md)
-    cpu_defaults={"agent": {"actor": {"hidden_dims": [16, 16]}, "critic": {"hidden_dims": [16, 16]}}},
-    # analytic policy gradients: wider networks than the learner's own (fewer iterations to solved), a budget of 1.5x
-    # the slowest seed that solved (docs/benchmarks.md)
-    learner_defaults={"shac": {"agent": {"max_iterations": 1100, "actor": {"hidden_dims": [64, 64]},
-                                         "critic": {"hidden_dims": [64, 64]}}}},
+    settings=TaskSettings(common=settings, on_gpu=gpu_settings, on_cpu=cpu_settings,
+                          for_learner={"shac": shac_settings}),
     gym_ids={"cartpole_warp/CartpoleSwingup-v0": None},
 ))

@@ -7,8 +7,8 @@ from typing import Any
 import warp as wp
 
 from ..engine.kernels import END_NONE
-from ..settings.config import merge
-from . import DENSE_PATH, SolvedRule, register, swingup
+from ..settings.presets import TrainSettings
+from . import SolvedRule, TaskSettings, compose, dense_path, register, swingup
 from .cart_base import sparse_reward
 
 
@@ -23,12 +23,16 @@ class CartpoleSwingupSparseEnv(swingup.CartpoleSwingupEnv):
     functions = dataclasses.replace(swingup.CartpoleSwingupEnv.functions, reward_and_end=reward_and_end)
 
 
+def settings(cfg: TrainSettings):
+    """2000 iterations, 1.5x the slowest seed measured (docs/benchmarks.md): the reward says nothing until the pole is
+    in the band."""
+    cfg.agent.max_iterations = 2000
+
+
 register(dataclasses.replace(
     swingup.TASK, name="cartpole-swingup-sparse", env_class=CartpoleSwingupSparseEnv,
     summary="swing the pole up, rewarded only in dm_control's sparse band (its swingup_sparse)",
     solved=SolvedRule(min_reward_per_step=0.5, full_episodes_only=True),
-    # 1.5x the slowest seed measured (docs/benchmarks.md): the reward says nothing until the pole is in the band
-    defaults=merge(swingup.TASK.defaults, {**DENSE_PATH, "agent": {"max_iterations": 2000}}),
-    gpu_defaults={}, cpu_defaults={},  # its figures were measured without the smooth swing-up's device settings
-    learner_defaults={},  # the swing-up's were not measured here
+    # measured without the smooth swing-up's device and learner settings
+    settings=TaskSettings(common=compose(swingup.settings, dense_path, settings)),
     gym_ids={"cartpole_warp/CartpoleSwingupSparse-v0": None}))
