@@ -30,6 +30,7 @@ from cartpole_warp.rl.runs import (
     population_members,
 )
 from cartpole_warp.rl.training import Training
+from cartpole_warp.settings.config import ConfigError
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
 STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
@@ -336,3 +337,19 @@ def test_each_member_trains_as_a_population_of_itself_alone_on_the_same_draws(tm
                                        atol=1e-4)
             torch.testing.assert_close(training.loop.learner.ppo.model.params[0], ppo.model.params[k], rtol=1e-4,
                                        atol=1e-5)
+
+
+def test_a_population_that_would_not_fit_in_memory_is_refused_before_it_is_built(tmp_path, monkeypatch):
+    """Room for three and a half members' envs (each with its evaluation's): five members are refused in one line
+    that says how many fit, before any env is built."""
+    from cartpole_warp.rl import training as training_module
+
+    cfg = train_config()
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger = 16, "cpu", "none"
+    per_member = (16 + cfg.eval.num_envs) * training_module.bytes_per_env_by_place(cfg, "cpu")["cpu"]
+    monkeypatch.setattr(training_module, "free_memory_bytes", lambda where: int(3.5 * per_member))
+    with pytest.raises(ConfigError, match=r"a population of 5 members x 16 envs of cartpole-balance needs about .* GB "
+                                          r"on cpu \(with 256 evaluation envs each\); it has .* GB free: at most ~3 "
+                                          r"members of 16 envs \(fewer --seeds or --num-envs\)"):
+        Training(cfg, tmp_path, members=members_of([0, 1, 2, 3, 4]))
+    assert not any(tmp_path.iterdir()), "nothing was written"

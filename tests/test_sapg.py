@@ -211,10 +211,10 @@ def test_the_best_policy_loaded_for_the_exports_is_the_leaders_and_the_followers
     """The run's end loads ``model_best.pt``'s actor (``load_cfg`` {"actor": True}) before it exports: the leader's
     rsl-rl actor, which the exports hold, is then that checkpoint's, its critic and the followers as they were."""
     learner = small_training(tmp_path).loop.learner
-    obs, _ = learner.iteration(learner.population.env.get_observations(), 0)
+    obs, _ = learner.iteration(learner.batched.env.get_observations(), 0)
     best = learner.state_dict()
     learner.iteration(obs, 1)
-    ppo = learner.population.ppo
+    ppo = learner.batched.ppo
     params, critic = ppo.model.params.detach().clone(), ppo.model.member_state_dicts(0)[1]
     learner.load_state_dict(best, {"actor": True}, strict=True)
     for key, value in best["actor_state_dict"].items():
@@ -228,7 +228,7 @@ def test_a_follower_gone_non_finite_starts_again_from_the_leader(tmp_path, monke
     """A follower whose update left non-finite weights takes the leader's networks, optimiser state and learning rate
     before the next iteration could feed its samples to the leader; a line names it."""
     learner = small_training(tmp_path).loop.learner
-    population, ppo = learner.population, learner.population.ppo
+    population, ppo = learner.batched, learner.batched.ppo
     iteration = population.iteration
 
     def diverging(obs, it):
@@ -237,7 +237,7 @@ def test_a_follower_gone_non_finite_starts_again_from_the_leader(tmp_path, monke
         return result
 
     monkeypatch.setattr(population, "iteration", diverging)
-    learner.iteration(learner.population.env.get_observations(), 0)
+    learner.iteration(learner.batched.env.get_observations(), 0)
     assert torch.isfinite(ppo.model.params).all()
     for tensor in (ppo.model.params, ppo.exp_avg, ppo.exp_avg_sq, ppo.learning_rate, ppo.adam_steps):
         assert torch.equal(tensor[2], tensor[0])
@@ -301,7 +301,7 @@ def test_the_evaluation_inside_the_step_plays_the_leader_and_leaves_every_block_
         runner = Training(cfg, tmp_path / f"run{in_step}").loop
         assert (runner.env.evaluation is not None) == in_step and runner.env.num_envs == 4 * 8
         runner.learn(3)
-        populations.append(runner.learner.population)
+        populations.append(runner.learner.batched)
     ppos = [population.ppo for population in populations]
     for field in ("observations", "actions", "rewards", "dones"):
         assert torch.equal(*(getattr(ppo, field) for ppo in ppos)), field

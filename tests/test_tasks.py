@@ -183,6 +183,7 @@ def test_a_misspelt_play_metric_fails_at_registration():
     ("cartpole_warp", "CartpoleGymEnv", "TaskGymEnv"), ("cartpole_warp", "CartpoleVectorEnv", "TaskVectorEnv"),
     ("cartpole_warp.wrappers.gymnasium", "CartpoleGymEnv", "TaskGymEnv"),
     ("cartpole_warp.rl.loop", "TaskRunner", "TrainingLoop"),
+    ("cartpole_warp.rl.learners.batched_ppo.learner", "PopulationLearner", "BatchedPpoLearner"),
 ])
 def test_the_old_names_still_work_and_say_the_new_one(module, old, new):
     import importlib

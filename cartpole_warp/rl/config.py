@@ -2,9 +2,10 @@
 (``rl.policies.to_rsl_rl``), ``env`` is the task's ``EnvConfig``; the rest says where runs go and what the console
 shows.
 
-The defaults are the dataclass defaults, then the task's own (``tasks.TaskSettings``: ``train_config``). A preset (``configs/<name>.yaml``)
-holds partial overrides of ``TrainConfig`` (sections ``env``, ``agent`` and the top-level fields); ``train.py`` and
-``play.py`` take every field as a flag (``--agent.algorithm.entropy-coef 0.01``).
+The defaults are the dataclass defaults, then the task's own (``tasks.TaskSettings``), resolved in one pass with the
+learner's and a preset's by ``train_config``. A preset (``configs/<name>.yaml``) holds partial overrides of
+``TrainConfig`` (sections ``env``, ``agent`` and the top-level fields); ``train.py`` and ``play.py`` take every field
+as a flag (``--agent.algorithm.entropy-coef 0.01``).
 """
 
 from __future__ import annotations

@@ -87,31 +87,21 @@ SINGLE_PROCESS = Ranks()
 """A process not started by torchrun."""
 
 
-def join_process_group(ranks: Ranks, device: str) -> dict | None:
-    """rsl-rl's ``multi_gpu`` config of this process once it has joined torchrun's NCCL process group on ``device``
-    (what rsl-rl's ``OnPolicyRunner`` does as it starts); None for a process alone."""
+def join_process_group(ranks: Ranks, device: str, backend: str = "nccl") -> dict | None:
+    """rsl-rl's ``multi_gpu`` config of this process once it has joined torchrun's process group on ``device`` (this
+    process's): NCCL for a run whose processes all-reduce gradients (on ``cuda:$LOCAL_RANK``: what rsl-rl's
+    ``OnPolicyRunner`` does as it starts), gloo for a population's, on any device (its members exchange no gradients,
+    only their run folder's name at the start and their table rows at the end). None for a process alone."""
     if not ranks.distributed:
         return None
-    if device != f"cuda:{ranks.local_rank}":
+    if backend == "nccl" and device != f"cuda:{ranks.local_rank}":
         raise ConfigError(f"process {ranks.rank} of a torchrun job trains on cuda:{ranks.local_rank}, not {device}")
     import torch
 
-    torch.distributed.init_process_group(backend="nccl", rank=ranks.rank, world_size=ranks.world_size)
-    torch.cuda.set_device(ranks.local_rank)
-    return {"global_rank": ranks.rank, "local_rank": ranks.local_rank, "world_size": ranks.world_size}
-
-
-def join_population_group(ranks: Ranks, device: str):
-    """Join torchrun's process group for a population (``rl.training``, with members) on ``device`` (this process's):
-    gloo, on any device, since its members exchange no gradients, only their run folder's name at the start and their
-    table rows at the end."""
-    if not ranks.distributed:
-        return
-    import torch
-
-    torch.distributed.init_process_group(backend="gloo", rank=ranks.rank, world_size=ranks.world_size)
+    torch.distributed.init_process_group(backend=backend, rank=ranks.rank, world_size=ranks.world_size)
     if device.startswith("cuda"):
         torch.cuda.set_device(device)
+    return {"global_rank": ranks.rank, "local_rank": ranks.local_rank, "world_size": ranks.world_size}
 
 
 def from_rank_zero(value, ranks: Ranks):

@@ -5,7 +5,7 @@
 
 Member k (``Member``: a seed and the settings it differs in) owns envs [k N, (k+1) N) of one env of K x N envs,
 restarted as a solo run of its seed starts them (``BatchedEnv.restart``: the same start states and physics draws), and
-networks initialised as that run's. ``PopulationLearner`` (``learners.batched_ppo``) runs the members' iterations
+networks initialised as that run's. ``BatchedPpoLearner`` (``learners.batched_ppo``) runs the members' iterations
 together: one rollout of the whole env, then one batched PPO update (per member rsl-rl's PPO) of the members still
 training. Everything else is per member, a run's record in the one training loop (``rl.loop``, ``rl.record``): its
 progress, evaluations (on envs of their own, with its seed; all members' in one batched run), verdicts,
@@ -142,5 +142,5 @@ def members_table(rows: list[dict], metric: str) -> str:
     return "\n".join(lines) + "\n"
 
 __getattr__ = moved_names(__name__, f"{__package__}.learners.batched_ppo.learner")
-"""The learner's parts that lived here (``PopulationLearner``, ``Member``, ...), until
+"""The learner's parts that lived here (``BatchedPpoLearner``, ``Member``, ...), until
 ``settings.deprecation.REMOVED_IN``."""

@@ -25,9 +25,9 @@ from ..evaluation.in_step import InStepEvaluation
 from ..settings.config import ConfigError, EnvConfig
 from ..wrappers.rsl_rl import RslRlVecEnv
 from .config import TrainConfig
-from .distributed import SINGLE_PROCESS, Ranks, from_rank_zero, join_population_group
+from .distributed import SINGLE_PROCESS, Ranks, from_rank_zero, join_process_group
 from .learners import learner_class
-from .learners.batched_ppo.learner import Member, PopulationLearner
+from .learners.batched_ppo.learner import BatchedPpoLearner, Member
 from .loop import TrainingLoop
 from .policies import to_rsl_rl
 from .population import check_population, write_population
@@ -66,34 +66,27 @@ def bytes_per_env_by_place(cfg: TrainConfig, device: str) -> dict[str, int]:
     return {"cpu": sum(per_env.values())} if device == "cpu" else {"cpu": per_env["host"], device: per_env["device"]}
 
 
-def check_memory(cfg: TrainConfig, device: str):
-    """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs (and the
-    evaluation's inside the step, ``eval.in_step``, counted as training envs) would not fit in the free memory of the
-    host or of ``device``, before anything is allocated."""
-    evaluation_envs = cfg.eval.num_envs if cfg.eval.in_step else 0
+def check_memory(cfg: TrainConfig, device: str, members: int = 0):
+    """ConfigError in one line, with the estimate (``bytes_per_env``), where ``cfg.env.num_envs`` envs of one run (and
+    the evaluation's inside the step, ``eval.in_step``, counted as training envs), or of each of a population's
+    ``members`` (with its evaluation's envs), would not fit in the free memory of the host or of ``device``, before
+    anything is allocated."""
+    n, evaluation_envs = cfg.env.num_envs, cfg.eval.num_envs if cfg.eval.in_step or members else 0
     for where, need_per_env in bytes_per_env_by_place(cfg, device).items():
-        need, free = (cfg.env.num_envs + evaluation_envs) * need_per_env, free_memory_bytes(where)
+        per_run = (n + evaluation_envs) * need_per_env
+        need, free = max(members, 1) * per_run, free_memory_bytes(where)
+        if need > free and members:
+            raise ConfigError(f"a population of {members} members x {n:,} envs of {cfg.task} needs about "
+                              f"{need / 1e9:,.1f} GB on {where} (with {evaluation_envs} evaluation envs each); it has "
+                              f"{free / 1e9:,.1f} GB free: at most ~{free // per_run} members of {n:,} envs (fewer "
+                              "--seeds or --num-envs)")
         if need > free:
-            steps = cfg.agent.num_steps_per_env
             frames = ", the camera's frames" if cfg.env.camera.enabled else ""
             raise ConfigError(
-                f"training {cfg.env.num_envs:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
-                f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of {steps} steps "
-                f"per env); {where} has {free / 1e9:,.1f} GB free: use at most "
+                f"training {n:,} envs of {cfg.task} needs about {need / 1e9:,.1f} GB on {where} "
+                f"({need_per_env / 1e3:,.1f} kB per env: the scene{frames} and rsl-rl's storage of "
+                f"{cfg.agent.num_steps_per_env} steps per env); {where} has {free / 1e9:,.1f} GB free: use at most "
                 f"~{free // need_per_env - evaluation_envs:,} envs (--num-envs) or fewer --agent.num-steps-per-env")
-
-
-def check_population_memory(cfg: TrainConfig, members: int, device: str):
-    """ConfigError in one line, with the estimate, where ``members`` x ``env.num_envs`` envs (and the evaluation's)
-    would not fit in the free memory of the host or of ``device``."""
-    for where, need_per_env in bytes_per_env_by_place(cfg, device).items():
-        per_member = (cfg.env.num_envs + cfg.eval.num_envs) * need_per_env
-        need, free = members * per_member, free_memory_bytes(where)
-        if need > free:
-            raise ConfigError(f"a population of {members} members x {cfg.env.num_envs:,} envs of {cfg.task} needs "
-                              f"about {need / 1e9:,.1f} GB on {where} (with {cfg.eval.num_envs} evaluation envs each); "
-                              f"it has {free / 1e9:,.1f} GB free: at most ~{free // per_member} members of "
-                              f"{cfg.env.num_envs:,} envs (fewer --seeds or --num-envs)")
 
 
 class Interrupts:
@@ -187,8 +180,8 @@ class Training:
         check_population(cfg)
         device = resolve_device(ranks.device(cfg.env.device, torch.cuda.device_count()))
         self.cfg = cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
-        check_population_memory(cfg, len(self.members), device)
-        join_population_group(ranks, device)
+        check_memory(cfg, device, len(self.members))
+        join_process_group(ranks, device, backend="gloo")
         return cfg.env
 
     def _build_env(self, env_cfg: EnvConfig) -> RslRlVecEnv:
@@ -211,7 +204,7 @@ class Training:
         if members:
             with timed(self.timing_s, "networks"):
                 rsl_rl_cfg = to_rsl_rl(cfg.agent, mirror=env.obs_mirror is not None, images=env.images)
-                learner = PopulationLearner(env, [member.config(cfg) for member in members], rsl_rl_cfg,
+                learner = BatchedPpoLearner(env, [member.config(cfg) for member in members], rsl_rl_cfg,
                                             cfg.env.seed)
         eval_env = None
         if (members or self.ranks.writes) and env.evaluation is None:

@@ -30,11 +30,11 @@ LEARNER_DEFAULTS: dict[str, dict] = {
                                                 "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
              "eval": {"in_step": False}},
 }
-"""What a learner changes in every task's defaults (``env``, ``agent`` and run sections), before what a task tunes for
-it (``tasks.TaskSettings.for_learner``) and a preset; 'ppo' and 'sapg' take the task's own. SHAC: 64 envs, windows of 32 env
-steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on every device (a task's
-PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its envs itself); chosen on
-the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
+"""What a learner changes in every task's defaults (``env``, ``agent`` and run sections), before what a task tunes
+for it (``tasks.TaskSettings.for_learner``) and a preset; 'ppo' and 'sapg' take the task's own. SHAC: 64 envs,
+windows of 32 env steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on
+every device (a task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its
+envs itself); chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
 PPO_UPDATE_LEARNERS = ("ppo", "sapg")
 """The learners whose update is PPO's (``algorithm``'s settings, whose mini-batches must split a rollout evenly)."""
 RENAMED_LEARNERS = {"apg": "shac"}

@@ -1,5 +1,5 @@
 """The batched PPO learner: K members (``Member``: a seed and the PPO settings it differs in) trained as one
-batched computation on one env of K x N envs, member k on block k (``PopulationLearner``; the update is
+batched computation on one env of K x N envs, member k on block k (``BatchedPpoLearner``; the update is
 ``update.PopulationPPO``). A population (``train.py --seeds``, ``rl.population``) and SAPG's leader and followers
 (``learners.sapg``) are both built on it."""
 
@@ -17,6 +17,7 @@ from tensordict import TensorDict
 
 from ....engine.streams import PhaseClock, TorchGraph
 from ....evaluation.statistics import EpisodeStats, summary_of
+from ....settings.deprecation import renamed
 from ....wrappers.rsl_rl import RslRlVecEnv, mirror
 from ...config import TrainConfig
 from ...policies import build_networks
@@ -59,7 +60,7 @@ def batched_ppo_problems(cfg: TrainConfig) -> dict[str, bool]:
     }
 
 
-class PopulationLearner:
+class BatchedPpoLearner:
     """The learner (``rl.learners.Learner``) of K members: their iterations on ``env`` (K x N envs, member k's block
     k), as one: each step the members' batched actors act on their blocks, one env step; then one update of every
     member not ``retire``d. On a GPU with
@@ -210,3 +211,8 @@ class PopulationLearner:
     def release_graphs(self):
         for graph in self._graphs or ():
             graph.release()
+
+
+__getattr__ = renamed(__name__, {"PopulationLearner": "BatchedPpoLearner"})
+"""The learner's name before it was named for what it runs (a population and SAPG's blocks both run on it), until
+``settings.deprecation.REMOVED_IN``."""

@@ -1,7 +1,7 @@
 """``--learner sapg``: split and aggregate policy gradients (after SAPG: Singla, Agarwal and Pathak, ICML 2024).
 
 The run's env is ``agent.sapg.num_blocks`` blocks of ``env.num_envs`` envs, block k policy k's. Every policy learns
-rsl-rl's PPO on its own block, all as one batched computation (``batched_ppo.PopulationLearner``); policy 0, the leader,
+rsl-rl's PPO on its own block, all as one batched computation (``batched_ppo.BatchedPpoLearner``); policy 0, the leader,
 also learns from one follower's block per iteration (``LeaderFollowerPPO``). The leader is the run's policy: the
 loop judges, saves and exports it (``SapgLearner``), so the run's folder plays and exports as a PPO run's.
 """
@@ -25,7 +25,7 @@ from ...config import TrainConfig
 from ...distributed import Ranks
 from ...policies import deterministic
 from .. import Readout
-from ..batched_ppo.learner import Member, PopulationLearner, batched_ppo_problems
+from ..batched_ppo.learner import BatchedPpoLearner, Member, batched_ppo_problems
 from ..batched_ppo.update import BatchedActorCritic, PopulationPPO
 
 OPTIMIZER_STATE = ("exp_avg", "exp_avg_sq", "adam_steps", "learning_rate")
@@ -122,17 +122,17 @@ class SapgLearner:
         entropy = sapg.follower_entropy_coefs or [cfg.agent.algorithm.entropy_coef] * (sapg.num_blocks - 1)
         members = [Member(seed)] + [Member(seed + k * FOLLOWER_SEED_STRIDE, (("entropy_coef", coef),))
                                     for k, coef in enumerate(entropy, start=1)]
-        self.population = PopulationLearner(
+        self.batched = BatchedPpoLearner(
             env, [member.config(cfg) for member in members], rsl_rl_cfg, seed,
             ppo_class=functools.partial(LeaderFollowerPPO, off_policy_coef=sapg.off_policy_coef,
                                         dual_clip=sapg.dual_clip))
-        self.env, self.clock, self.on_step = env, self.population.clock, None
-        self.actor = self.population.actors[0]
+        self.env, self.clock, self.on_step = env, self.batched.clock, None
+        self.actor = self.batched.actors[0]
         """The leader's rsl-rl actor (its weights copied in by ``eval_mode``)."""
 
     @property
     def episode_steps(self) -> torch.Tensor:
-        return self.population.episode_steps[:1]
+        return self.batched.episode_steps[:1]
 
     def begin(self, first_iteration: int, end_iteration: int):
         """Nothing: every policy trains from the first iteration."""
@@ -140,9 +140,9 @@ class SapgLearner:
     def iteration(self, obs: TensorDict, it: int) -> tuple[TensorDict, dict]:
         """Every policy's iteration; the leader's losses out. A follower whose networks went non-finite starts again
         from the leader's state (else the leader would learn from its non-finite samples), with a line saying so."""
-        obs, losses = self.population.iteration(obs, it)
-        readout = self.population.read(losses)
-        for k in range(1, self.population.num_members):
+        obs, losses = self.batched.iteration(obs, it)
+        readout = self.batched.read(losses)
+        for k in range(1, self.batched.num_members):
             if readout.nonfinite[k]:
                 self._restart_follower(k)
                 print(f"follower {k}'s networks went non-finite in iteration {it + 1}: it starts again from the "
@@ -151,7 +151,7 @@ class SapgLearner:
 
     def read(self, losses: dict) -> Readout:
         """The leader's figures (``iteration`` read every policy's)."""
-        readout = self.population.readout
+        readout = self.batched.readout
         return Readout([readout.episodes[0]], [readout.learning_rates[0]], [readout.nonfinite[0]], [losses],
                        [readout.action_std[0]])
 
@@ -161,35 +161,35 @@ class SapgLearner:
     @torch.no_grad()
     def _restart_follower(self, k: int):
         """Follower ``k`` given the leader's networks, normalisers, Adam state and learning rate."""
-        ppo = self.population.ppo
+        ppo = self.batched.ppo
         ppo.model.load_member_state_dicts(k, *ppo.model.member_state_dicts(0))
         for name in OPTIMIZER_STATE:
             getattr(ppo, name)[k] = getattr(ppo, name)[0]
 
     def member_actor(self, member: int = 0) -> torch.nn.Module:
-        return self.population.member_actor(0)
+        return self.batched.member_actor(0)
 
     def evaluation_policy(self) -> Policy:
         """The leader's, through its rsl-rl actor (``eval_mode`` copies its weights in)."""
         return deterministic(self.actor)
 
     def train_mode(self):
-        self.population.train_mode()
+        self.batched.train_mode()
 
     def eval_mode(self):
-        self.population.member_actor(0)
+        self.batched.member_actor(0)
 
     def state_dict(self, member: int = 0) -> dict:
         """The leader's checkpoint as a PPO run's, and every policy's networks, normalisers and optimiser state."""
-        ppo = self.population.ppo
+        ppo = self.batched.ppo
         state = {"model": ppo.model.state_dict()} | {name: getattr(ppo, name) for name in OPTIMIZER_STATE}
-        return self.population.state_dict(0) | {"sapg_state_dict": state}
+        return self.batched.state_dict(0) | {"sapg_state_dict": state}
 
     @torch.no_grad()
     def load_state_dict(self, loaded: dict, load_cfg: dict | None, strict: bool, member: int = 0):
         """Every policy's state (``load_cfg`` None: a resume, of a sapg checkpoint only), or the leader's networks that
         ``load_cfg`` names (rsl-rl's choice of parts: the best policy loaded for the exports)."""
-        ppo = self.population.ppo
+        ppo = self.batched.ppo
         if load_cfg is None:
             if "sapg_state_dict" not in loaded:
                 raise ConfigError("--learner sapg resumes only a sapg run's checkpoint (it holds every policy's state)")
@@ -198,8 +198,8 @@ class SapgLearner:
             for name in OPTIMIZER_STATE:
                 getattr(ppo, name).copy_(state[name])
         else:
-            self.population.load_state_dict(loaded, load_cfg, strict, 0)
-        self.population.member_actor(0)  # the leader's rsl-rl networks hold what was loaded
+            self.batched.load_state_dict(loaded, load_cfg, strict, 0)
+        self.batched.member_actor(0)  # the leader's rsl-rl networks hold what was loaded
 
     def release_graphs(self):
-        self.population.release_graphs()
+        self.batched.release_graphs()
