@@ -80,6 +80,11 @@ class PopulationArgs:
     """--seeds: settings the members differ in, name=value1,value2: one member per combination and seed (PPO's
     learning-rate, entropy-coef, gamma, lam, clip-param, desired-kl, value-loss-coef, max-grad-norm), e.g.
     agent.algorithm.learning-rate=1e-3,3e-4."""
+    until: Literal["each-solved", "first-solved"] = "each-solved"
+    """--seeds: 'each-solved' trains every member to its own verdict (or --max-iterations); 'first-solved' ends the
+    population in the iteration its first member is judged solved (the others stop, status 'outdone'), and its folder
+    then holds that member's policy: config.yaml, model_best.pt and the exports, which play.py --run plays (one
+    process: not under torchrun)."""
 
 
 @dataclass
@@ -211,6 +216,20 @@ def resolve_args(argv: list[str]) -> tuple[TrainConfig, Path, Path | None, Train
     return cfg, run_dir, checkpoint, args
 
 
+def check_population_flags(args: TrainArgs, checkpoint: Path | None, ranks: Ranks) -> bool:
+    """Whether the flags ask for a population (``--seeds``, ``--population.vary``); ConfigError where they ask for
+    what one cannot do, or for a population's mode without one."""
+    population = bool(args.population.seeds or args.population.vary)
+    first_solved = args.population.until == "first-solved"
+    require(population or not first_solved, "--population.until first-solved ends a population: give --seeds")
+    require(not (first_solved and ranks.distributed), "--population.until first-solved trains in one process (its "
+                                                      "members judged together), not under torchrun")
+    if population:
+        require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
+        require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")
+    return population
+
+
 def check_browser_viewer(args: TrainArgs) -> None:
     """``--viewer viser``: ConfigError now, before the build, where the page could not be served."""
     from .viz.web import ViewerUnavailable, check_viser
@@ -240,10 +259,8 @@ def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainA
     """The training in ``run_dir`` (over torchrun's processes, if any): one run, or with ``--seeds`` /
     ``--population.vary`` a population's (``rl.population``); 130 where interrupted."""
     ranks = Ranks.from_environment()
-    population = bool(args.population.seeds or args.population.vary)
-    if population:
-        require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
-        require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")
+    population = check_population_flags(args, checkpoint, ranks)
+    first_solved = args.population.until == "first-solved"
     if args.viewer == "viser":
         check_browser_viewer(args)
     with timed(timing_s, "imports"):
@@ -266,7 +283,7 @@ def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainA
     training, result = None, None
     try:
         training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s, members=members,
-                            before_build=building)
+                            until_first_solved=first_solved, before_build=building)
         if ranks.writes:
             announce(training, args, training.run_dir, checkpoint)
         result = training.run()
@@ -342,11 +359,12 @@ def report(summary, run_dir: Path, checkpoint: Path | None, timing_s: dict[str, 
 
 def report_population(result: dict, run_dir: Path):
     """The end of a population: its members' table, how many solved, its pace, and how to watch one."""
-    members = result["members"]
+    members, first = result["members"], result.get("first_solved")
+    watch = (f"the population's policy, {first}'s: python play.py --headless --run {run_dir}" if first
+             else f"watch one: python play.py --headless --run {run_dir / members[0]['member']}")
     print(f"\n{(run_dir / MEMBERS_FILE).read_text()}{result['solved']} of {len(members)} solved; the population "
           f"trained {result['env_steps']:,} env steps in {result['train_time_s']:.1f} s "
-          f"({result['env_steps_per_s']:,} steps/s)\nwatch one: python play.py --headless --run "
-          f"{run_dir / members[0]['member']}")
+          f"({result['env_steps_per_s']:,} steps/s)\n{watch}")
 
 
 if __name__ == "__main__":

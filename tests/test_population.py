@@ -20,6 +20,7 @@ from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.loop import TrainingLoop
 from cartpole_warp.rl.population import members_of
 from cartpole_warp.rl.runs import (
+    BEST_CHECKPOINT,
     CONFIG_FILE,
     CURVE_FILE,
     EXPORT_DIR,
@@ -245,6 +246,7 @@ def test_torchrun_spreads_the_members_over_its_processes_and_each_share_trains_a
     (["--seeds", "1", "--population.vary", "agent.algorithm.gamma=high"], "the values must be numbers"),
     (["--seeds", *map(str, range(100)), "--num-envs", "1000000"], "members of 1,000,000 envs (fewer --seeds or"),
     (["--seeds", "1", "--learner", "shac"], "cannot train with --learner shac"),
+    (["--population.until", "first-solved"], "--population.until first-solved ends a population: give --seeds"),
 ])
 def test_bad_population_inputs_are_one_clear_line(tmp_path, flags, message):
     result = call_main("train", *flags, "--device", "cpu", "--max-iterations", "1", "--logger", "none", "--log-dir",
@@ -353,3 +355,36 @@ def test_a_population_that_would_not_fit_in_memory_is_refused_before_it_is_built
                                           r"members of 16 envs \(fewer --seeds or --num-envs\)"):
         Training(cfg, tmp_path, members=members_of([0, 1, 2, 3, 4]))
     assert not any(tmp_path.iterdir()), "nothing was written"
+
+
+def test_a_population_until_its_first_solved_member_ends_there_and_plays_that_members_policy(tmp_path, monkeypatch):
+    """Members judged every iteration; the judge finds member 1 (seed 8) solved after iteration 2 and the others not:
+    the population ends there, seed 8 solved and the others outdone, and its folder holds seed 8's policy (config,
+    model_best.pt bitwise its own, exports), which play.py --run plays."""
+    from cartpole_warp.evaluation.statistics import EpisodeSummary
+
+    cfg = train_config()
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 16, DEVICE, "none", 10
+    cfg.eval.num_envs, cfg.eval.min_interval, cfg.eval.max_interval = 8, 1, 1
+    training = Training(cfg, tmp_path, members=members_of([7, 8, 9]), until_first_solved=True)
+    judge = training.loop.evaluations.own_envs
+    verdicts = iter([{}, {}, {1: EpisodeSummary(8, 590.0, 600.0, 0.99, 1.0, 8, 0.99)}])
+    failing = EpisodeSummary(8, 10.0, 20.0, 0.5, 0.0)
+
+    def judged(members):
+        solved = next(verdicts, {})
+        return {k: solved.get(k, failing) for k in members}
+
+    monkeypatch.setattr(type(judge), "__call__", lambda self, members: judged(members))
+    result = training.run()
+    assert result["first_solved"] == "seed8"
+    assert {row["member"]: (row["status"], row["iterations"]) for row in result["members"]} == {
+        "seed7": ("outdone", 3), "seed8": ("solved", 3), "seed9": ("outdone", 3)}
+    ours, theirs = (torch.load(folder / BEST_CHECKPOINT, weights_only=False)
+                    for folder in (tmp_path, tmp_path / "seed8"))
+    assert all(torch.equal(ours["actor_state_dict"][k], v) for k, v in theirs["actor_state_dict"].items())
+    assert (tmp_path / CONFIG_FILE).read_text() == (tmp_path / "seed8" / CONFIG_FILE).read_text()
+    assert (tmp_path / "exported" / "policy.onnx").is_file()
+    played = call_main("play", "--headless", "--run", tmp_path, "--num-envs", "4", "--video-length", "2")
+    assert played.returncode == 0, played.stdout + played.stderr
+    assert f"policy: {tmp_path / BEST_CHECKPOINT}" in played.stdout

@@ -34,7 +34,7 @@ from .distributed import SINGLE_PROCESS, Ranks, join_process_group
 from .evaluations import Evaluations
 from .learners import Learner, Readout, learner_class
 from .policies import to_rsl_rl
-from .progress import Pace, format_duration
+from .progress import Pace, population_lines
 from .record import RunRecord
 
 if TYPE_CHECKING:
@@ -49,11 +49,12 @@ class TrainingLoop:
     writes nothing; else the run's folder, or the folder of the members' (``log_dir / member.name``). Evaluations run
     on ``eval_env`` (K blocks for K members) or, where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``),
     inside the training's step. ``rsl_rl_cfg`` is rsl-rl's ``train_cfg`` dict of ``cfg``; ``prefix`` comes before
-    each of the loop's own console lines."""
+    each of the loop's own console lines. ``until_first_solved``: every run ends in the iteration the first is judged
+    solved (the others 'outdone'), which ``first_solved`` names (of several: the best by the play metric)."""
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None,
                  learner: Learner | None = None, ranks: Ranks | None = None, members: Sequence[Member] = (),
-                 prefix: str = ""):
+                 prefix: str = "", until_first_solved: bool = False):
         self.env, self.config, self.device = env, cfg, env.device
         self.ranks = ranks if ranks is not None else SINGLE_PROCESS if members else Ranks.from_environment()
         rsl_rl = functools.partial(to_rsl_rl, mirror=env.obs_mirror is not None, images=env.images)
@@ -73,7 +74,6 @@ class TrainingLoop:
                                   self.ranks, self.evaluations) for k, (config, run_dir) in enumerate(runs)]
         self.members = list(members)
         self.prefix = prefix
-        """Before each of the loop's own console lines (a population's process in a torchrun job: its rank)."""
         for record in self.records:
             record.report.console = not members  # a population prints its own line
         if cfg.console == "rsl_rl":
@@ -82,8 +82,8 @@ class TrainingLoop:
         self._span = (0, 0)
         self.iteration_s: list[float] = []
         """Each iteration's wall seconds, its evaluations, books and lines included."""
-        self.evaluation_s = 0.0
-        """The seconds spent in the evaluations' judge."""
+        self.evaluation_s = 0.0  # the seconds in the evaluations' judge
+        self.until_first_solved, self.first_solved = until_first_solved, None
         self.on_iteration: Callable[[int, EpisodeSummary], None] | None = None
         """Called after each iteration's console line (by the process that writes) with the iteration and the first
         member's episodes' summary (the browser viewer's and ``--video``'s hook)."""
@@ -103,11 +103,9 @@ class TrainingLoop:
         ending early on a stop request, non-finite networks or, with ``stop_when_solved``, once solved. Non-finite
         states never reach the learner (the env resets them), so there is no per-step NaN check; episode statistics
         stay on the device until the iteration ends."""
-        running = [k for k, record in enumerate(self.records) if record.stop_reason is None]
-        if not running:
+        if not (running := [k for k, record in enumerate(self.records) if record.stop_reason is None]):
             return
-        first = self.records[running[0]].next_iteration
-        self._span = (first, first + num_learning_iterations)
+        self._span = (first := self.records[running[0]].next_iteration, first + num_learning_iterations)
         obs = self._start(running, init_at_random_ep_len)
         tick = time.perf_counter()
         for it in range(*self._span):
@@ -158,7 +156,8 @@ class TrainingLoop:
                 self.records[k].after_iteration(it, readout.episodes[k], readout.losses[k], readout.learning_rates[k],
                                                 readout.action_std[k], pace, verdicts.get(k), timing,
                                                 self._stop_requested)
-        still = [k for k in running if self.records[k].stop_reason is None]
+        still = self._first_solved(running) if self.until_first_solved else running
+        still = [k for k in still if self.records[k].stop_reason is None]
         if self.members:
             self._population_lines(it, verdicts, still)
         if self.on_iteration is not None and self.ranks.writes:
@@ -169,24 +168,27 @@ class TrainingLoop:
                 self.records[k].finish()
         return still
 
-    def _population_lines(self, it: int, verdicts: dict, running: list[int]):
-        """A population's console: a line per verdict, then the population's line."""
+    def _first_solved(self, running: list[int]) -> list[int]:
+        """Once a run is judged solved, the first (``first_solved``) and the end of the others: 'solved' where they
+        were too, else 'outdone'; the runs still going out."""
         metric = self.config.task_spec.play_metric
-        for k in sorted(verdicts):
-            entry = self.records[k].progress.history[-1]
-            print(f"{self.prefix}  {self.members[k].name}: eval of it {verdicts[k].iteration + 1}'s policy {metric} "
-                  f"{entry['evaluation'][metric] or 0.0:.3f}{': SOLVED' if entry['solved'] else ''}", flush=True)
-        records, elapsed_s = self.records, time.perf_counter() - self._start_s
-        first, end = self._span
-        solved = sum(record.progress.solved_at is not None for record in records)
-        rewards = [records[k].progress.history[-1]["mean_reward_per_step"] for k in running
-                   if records[k].progress.history[-1]["episodes"]]
-        spread = f" | reward/step {min(rewards):6.3f} .. {max(rewards):6.3f}" if rewards else ""
-        done = it + 1 - first
-        steps_per_s = done * self.env.num_envs * self.rsl_rl_cfg["num_steps_per_env"] / elapsed_s
-        eta = elapsed_s / done * (end - it - 1)
-        print(f"{self.prefix}it {it + 1:>{len(str(end))}}/{end} | {len(running)} running, {solved} solved of "
-              f"{len(records)}{spread} | {steps_per_s / 1e6:6.2f}M steps/s | ETA {format_duration(eta)}", flush=True)
+        solved = [k for k in running if self.records[k].progress.solved_at is not None]
+        if not solved:
+            return running
+        self.first_solved = max(solved, key=lambda k: (self.records[k].progress.best[metric] or 0.0, -k))
+        for k in running:
+            self.records[k].stop_reason = "solved" if k in solved else "outdone"
+        return []
+
+    def _population_lines(self, it: int, verdicts: dict, running: list[int]):
+        """A population's console (``progress.population_lines``)."""
+        lines = population_lines(self.config.task_spec.play_metric, [member.name for member in self.members],
+                                 [record.progress for record in self.records],
+                                 {k: judged.iteration for k, judged in verdicts.items()}, running, (it, *self._span),
+                                 time.perf_counter() - self._start_s,
+                                 self.env.num_envs * self.rsl_rl_cfg["num_steps_per_env"])
+        for line in lines:
+            print(self.prefix + line, flush=True)
 
     def release_graphs(self):
         """Free the learner's captured graphs (before the process group is destroyed); ``learn`` captures again."""

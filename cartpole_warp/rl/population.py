@@ -30,7 +30,7 @@ from ..settings.files import write_text
 from .config import TrainConfig
 from .distributed import Ranks, from_every_rank
 from .learners.batched_ppo.learner import VARIABLE_SETTINGS, Member, batched_ppo_problems
-from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary
+from .runs import MEMBERS_FILE, POPULATION_FILE, RunSummary, copy_policy
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -100,7 +100,8 @@ def write_population(loop: TrainingLoop, summaries: list[RunSummary], run_dir: P
     process returns the whole), after ``loop`` trained this process's members (whose ``summaries`` these are) for
     ``train_time_s``: the members' rows (``member_rows``); the population's wall time (its slowest process's), env
     steps, and the pace of its median iterations (evaluations, checkpoints and lines included; summed over the
-    processes)."""
+    processes); where it ended at its first solved member (``TrainingLoop.first_solved``), that member's name and its
+    policy in ``run_dir`` (``runs.copy_policy``)."""
     cfg, metric = loop.config, loop.config.task_spec.play_metric
     median_s = statistics.median(loop.iteration_s) if loop.iteration_s else None
     parts = from_every_rank({"rows": member_rows(loop.members, summaries, metric), "train_time_s": train_time_s,
@@ -123,7 +124,10 @@ def write_population(loop: TrainingLoop, summaries: list[RunSummary], run_dir: P
                                                             for part in parts)) if paced else None,
               "num_envs": sum(part["num_envs"] for part in parts), "device": loop.env.device,
               "processes": ranks.world_size,
-              "median_solved_s": statistics.median(solved_s) if solved_s else None}
+              "median_solved_s": statistics.median(solved_s) if solved_s else None,
+              "first_solved": None if loop.first_solved is None else loop.members[loop.first_solved].name}
+    if result["first_solved"] is not None:  # the population's policy: its first solved member's
+        copy_policy(run_dir / result["first_solved"], run_dir)
     if ranks.writes:
         write_text(run_dir / POPULATION_FILE, json.dumps(result, indent=2) + "\n")
         write_text(run_dir / MEMBERS_FILE, members_table(rows, metric))

@@ -123,6 +123,30 @@ class ProgressLine:
                 "is far faster (docs/results.md: each task's measured times), or set fewer --max-iterations")
 
 
+def population_lines(metric: str, names: list[str], progresses: list, verdicts: dict[int, int], running: list[int],
+                     span: tuple[int, int, int], elapsed_s: float, env_steps_per_iteration: int) -> list[str]:
+    """A population's console after iteration ``it`` of ``span`` (it, first, end: exclusive), ``elapsed_s`` into its
+    training: a line per member with a verdict (``verdicts``: member -> the iteration of the policy judged; its
+    ``play metric`` from its ``progresses``' history, ``runs.Progress``), then the population's: the members
+    ``running``, those solved, the spread of their rewards per step, its pace and the time it has left."""
+    it, first, end = span
+    lines = []
+    for k in sorted(verdicts):
+        entry = progresses[k].history[-1]
+        value = entry["evaluation"][metric] or 0.0
+        lines.append(f"  {names[k]}: eval of it {verdicts[k] + 1}'s policy {metric} {value:.3f}"
+                     f"{': SOLVED' if entry['solved'] else ''}")
+    solved = sum(progress.solved_at is not None for progress in progresses)
+    last = {k: progresses[k].history[-1] for k in running}
+    rewards = [entry["mean_reward_per_step"] for entry in last.values() if entry["episodes"]]
+    spread = f" | reward/step {min(rewards):6.3f} .. {max(rewards):6.3f}" if rewards else ""
+    done = it + 1 - first
+    steps_per_s, eta = done * env_steps_per_iteration / elapsed_s, elapsed_s / done * (end - it - 1)
+    lines.append(f"it {it + 1:>{len(str(end))}}/{end} | {len(running)} running, {solved} solved of {len(progresses)}"
+                 f"{spread} | {steps_per_s / 1e6:6.2f}M steps/s | ETA {format_duration(eta)}")
+    return lines
+
+
 def in_git_repository(path: str) -> bool:
     """Whether ``path`` lies in a git checkout (rsl-rl stores the code state of those, and prints a line for each
     other, e.g. an installed rsl_rl)."""

@@ -15,6 +15,7 @@ import importlib.metadata
 import json
 import platform
 import re
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -106,6 +107,14 @@ def populations(experiment: Path) -> list[Path]:
 def newer_populations(run_dir: Path) -> list[Path]:
     """The population folders of ``run_dir``'s experiment newer than it (by name, i.e. timestamp)."""
     return [p for p in populations(Path(run_dir).parent) if p.name > Path(run_dir).name]
+
+
+def copy_policy(run_dir: Path, into: Path) -> list[Path]:
+    """The policy of the run in ``run_dir`` copied ``into`` another folder, which then plays and exports as that run
+    (``play.py --run``): its ``config.yaml``, ``model_best.pt`` (its best evaluation's policy) and exports; the copies
+    out."""
+    copies = [Path(shutil.copy2(run_dir / name, into / name)) for name in (CONFIG_FILE, BEST_CHECKPOINT)]
+    return copies + [Path(shutil.copytree(run_dir / EXPORT_DIR, into / EXPORT_DIR, dirs_exist_ok=True))]
 
 
 def play_checkpoint(run_dir: Path) -> Path:
@@ -210,7 +219,9 @@ class Progress:
 class RunSummary:
     """``summary.json``: what a run did, in one schema."""
 
-    status: Literal["completed", "solved", "interrupted", "non-finite"]
+    status: Literal["completed", "solved", "interrupted", "non-finite", "outdone"]
+    """Why training ended: its budget, solved, a signal, non-finite networks, or (a population's member, with
+    ``--population.until first-solved``) another member judged solved first."""
     iterations: int
     env_steps: int
     train_time_s: float

@@ -125,12 +125,15 @@ class Training:
     one env of K x N envs (N = ``env.num_envs``) and writing an ordinary run folder, ``run_dir / member.name``. In a
     torchrun job (``ranks``) a run's processes each train its own envs on their own GPU with seed + rank, and rank 0
     alone writes the run folder; a population's each train their share of the members, in rank 0's ``run_dir``.
-    ``before_build`` is called once the training is checked (ConfigError where it cannot run or would not fit),
-    before its envs are built; ``setup_time_s`` counts from there."""
+    ``until_first_solved``: a population ends in the iteration its first member is judged solved, and its folder then
+    holds that member's policy (``runs.copy_policy``). ``before_build`` is called once the training is checked
+    (ConfigError where it cannot run or would not fit), before its envs are built; ``setup_time_s`` counts from
+    there."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None,
                  ranks: Ranks = SINGLE_PROCESS, timing_s: dict[str, float] | None = None,
-                 members: Sequence[Member] = (), before_build: Callable[[], None] | None = None):
+                 members: Sequence[Member] = (), until_first_solved: bool = False,
+                 before_build: Callable[[], None] | None = None):
         self.cfg, self.ranks = cfg.validate(), ranks
         if cfg.agent.logger == "wandb" and importlib.util.find_spec("wandb") is None:
             raise ConfigError("--logger wandb needs the wandb package: pip install wandb (and wandb login)")
@@ -151,7 +154,7 @@ class Training:
         self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
         """Where the training's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); each
         summary.json keeps them."""
-        self.loop = self._build_loop(env_cfg)
+        self.loop = self._build_loop(env_cfg, until_first_solved)
         with timed(self.timing_s, "eval_env"):
             self.loop.evaluations.prepare()
             if resume_from is not None:
@@ -196,7 +199,7 @@ class Training:
             batched.restart(k * n, (k + 1) * n, member.seed)
         return RslRlVecEnv(batched, InStepEvaluation(batched, extra, self.cfg.env.seed) if in_step else None)
 
-    def _build_loop(self, env_cfg: EnvConfig) -> TrainingLoop:
+    def _build_loop(self, env_cfg: EnvConfig, until_first_solved: bool) -> TrainingLoop:
         """The learner (a population's built here, before its evaluation envs), the evaluation's envs (where they are
         envs of their own, in a process that judges), the loop."""
         cfg, env, members = self.cfg, self.env, self.members
@@ -214,7 +217,7 @@ class Training:
         with timed(self.timing_s, "networks"):
             return TrainingLoop(env, dataclasses.replace(cfg, env=env_cfg),
                                 self.run_dir if members or self.ranks.writes else None, eval_env, learner,
-                                SINGLE_PROCESS if members else self.ranks, members, self.prefix)
+                                SINGLE_PROCESS if members else self.ranks, members, self.prefix, until_first_solved)
 
     @property
     def solved_definition(self) -> str:
