@@ -29,13 +29,15 @@ from ..settings.config import (
     ConfigError,
     Name,
     TaskT,
+    apply_overrides,
+    changes,
     checked,
     from_dict,
     merge,
     overrides_dict,
     require,
 )
-from ..settings.presets import TrainSettings, apply_overrides, changes
+from ..settings.presets import TrainSettings
 
 
 @dataclass(kw_only=True)
@@ -118,7 +120,10 @@ def changed_by(task: tasks.Task, part: tasks.Configure | None, before: list) -> 
     dicts of overrides) have been applied to it."""
     cfg = tasks.fresh_settings(task)
     for earlier in before:
-        apply_overrides(cfg, earlier) if isinstance(earlier, dict) else _apply(cfg, earlier)
+        if isinstance(earlier, dict):
+            apply_overrides(cfg, earlier)
+        else:
+            _apply(cfg, earlier)
     unchanged = dataclasses.asdict(cfg)
     _apply(cfg, part)
     return changes(unchanged, dataclasses.asdict(cfg))

@@ -98,41 +98,6 @@ class TrainSettings(RunSettings, Generic[TaskT]):
     agent: RunnerConfig = field(default_factory=RunnerConfig)
 
 
-def apply_overrides(config: object, overrides: dict) -> None:
-    """Set ``overrides`` (nested dicts, as a preset's sections) on the dataclass tree ``config`` in place: a dict
-    into a field holding a dataclass recurses, any other value replaces the field's."""
-    for key, value in overrides.items():
-        current = getattr(config, key)
-        if isinstance(value, dict) and dataclasses.is_dataclass(current):
-            apply_overrides(current, value)
-        else:
-            setattr(config, key, value)
-
-
-def stray_fields(config: object, prefix: str = "") -> list[str]:
-    """The dotted names of the attributes set on the dataclass tree ``config`` that none of its dataclasses has as a
-    field (a misspelt setting written by attribute)."""
-    names = {f.name for f in dataclasses.fields(config)}
-    stray = [f"{prefix}{name}" for name in vars(config) if name not in names and not name.startswith("__")]
-    for name in sorted(names):
-        value = getattr(config, name)
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            stray += stray_fields(value, f"{prefix}{name}.")
-    return stray
-
-
-def changes(before: dict, after: dict) -> dict:
-    """The nested leaves of ``after`` (``dataclasses.asdict`` of a config) whose values differ from ``before``'s."""
-    out = {}
-    for key, value in after.items():
-        if isinstance(value, dict) and isinstance(before.get(key), dict):
-            if inner := changes(before[key], value):
-                out[key] = inner
-        elif before.get(key) != value:
-            out[key] = value
-    return out
-
-
 @dataclass
 class PresetFile(RunSettings):
     """The schema of a preset file: a training config's sections and fields, every one optional. ``env`` is checked

@@ -27,15 +27,18 @@ from ..settings.agent import RENAMED_LEARNERS, Learner
 from ..settings.config import (
     ConfigError,
     EnvConfig,
+    apply_overrides,
+    changes,
     config_errors,
     from_dict,
     merge,
     overrides_dict,
     raise_config_errors,
     require,
+    stray_fields,
 )
 from ..settings.deprecation import REMOVED_IN
-from ..settings.presets import TrainSettings, apply_overrides, changes, load_preset, overrides_errors, stray_fields
+from ..settings.presets import TrainSettings, load_preset, overrides_errors
 
 DEFAULT_TASK = "cartpole-balance"
 """The task of ``make_env``, ``train.py`` and ``play.py`` unless told otherwise."""
@@ -201,7 +204,7 @@ def with_current_learners(task: Task) -> Task:
         for name, part in by_learner.items():
             if name in RENAMED_LEARNERS:
                 warnings.warn(f"task {task.name!r}: {field_name}[{name!r}] is now [{RENAMED_LEARNERS[name]!r}]; the "
-                              f"old name goes in {REMOVED_IN}", DeprecationWarning, stacklevel=5)  # register's caller
+                              f"old name goes in {REMOVED_IN}", DeprecationWarning, stacklevel=4)  # register's caller
                 name = RENAMED_LEARNERS[name]
             require(name in get_args(Learner), f"task {task.name!r}: {field_name} names {name!r}, no learner "
                                                f"(the learners: {', '.join(get_args(Learner))})")
