@@ -85,6 +85,37 @@ class PopulationArgs:
     population in the iteration its first member is judged solved (the others stop, status 'outdone'), and its folder
     then holds that member's policy: config.yaml, model_best.pt and the exports, which play.py --run plays (one
     process: not under torchrun)."""
+    exploit_interval: int | None = None
+    """--seeds: population-based training every N iterations (none if left out; one process: not under torchrun).
+    The members still training are ranked (by their latest evaluations' play metric where all have one that recent,
+    else their training return); each of the bottom --population.exploit-fraction takes the whole state of one of the
+    top (networks, optimiser, normalisers, settings) and perturbs its settings. Its lineage: members.md and its
+    folder's lineage.json."""
+    exploit_fraction: float = 0.25
+    """--population.exploit-interval: the share of members that take a top one's state, and of those they take from
+    (at least one, at most half)."""
+    perturb: list[str] = field(default_factory=list)
+    """--population.exploit-interval: the settings perturbed after an exploit (empty: every one --population.vary
+    takes, but the learning rate under the adaptive schedule and desired-kl under the fixed one)."""
+    perturb_factor: float = 1.2
+    """--population.exploit-interval: each perturbed setting is scaled by this or its inverse, at random (gamma and
+    lam: their horizon, 1 - value)."""
+
+    def modes(self, seed: int) -> list:
+        """The population's modes (``rl.modes``) these flags ask for, drawing from ``seed``; ConfigError in one line
+        for a bad value or an exploit's flag without --population.exploit-interval."""
+        from .rl.modes import Exploitation, UntilFirstSolved
+
+        pbt = {"--population.exploit-fraction": self.exploit_fraction != 0.25, "--population.perturb": self.perturb,
+               "--population.perturb-factor": self.perturb_factor != 1.2}
+        given = [flag for flag, asked in pbt.items() if asked]
+        require(self.exploit_interval is not None or not given,
+                f"{', '.join(given)} set population-based training: give --population.exploit-interval N too")
+        modes = [UntilFirstSolved()] if self.until == "first-solved" else []
+        if self.exploit_interval is not None:
+            modes.append(Exploitation(self.exploit_interval, self.exploit_fraction, self.perturb_factor,
+                                      tuple(self.perturb), seed))
+        return modes
 
 
 @dataclass
@@ -220,10 +251,10 @@ def check_population_flags(args: TrainArgs, checkpoint: Path | None, ranks: Rank
     """Whether the flags ask for a population (``--seeds``, ``--population.vary``); ConfigError where they ask for
     what one cannot do, or for a population's mode without one."""
     population = bool(args.population.seeds or args.population.vary)
-    first_solved = args.population.until == "first-solved"
-    require(population or not first_solved, "--population.until first-solved ends a population: give --seeds")
-    require(not (first_solved and ranks.distributed), "--population.until first-solved trains in one process (its "
-                                                      "members judged together), not under torchrun")
+    require(population or args.population.until != "first-solved",
+            "--population.until first-solved ends a population: give --seeds")
+    require(population or args.population.exploit_interval is None,
+            "--population.exploit-interval trains a population: give --seeds")
     if population:
         require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
         require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")
@@ -260,7 +291,6 @@ def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainA
     ``--population.vary`` a population's (``rl.population``); 130 where interrupted."""
     ranks = Ranks.from_environment()
     population = check_population_flags(args, checkpoint, ranks)
-    first_solved = args.population.until == "first-solved"
     if args.viewer == "viser":
         check_browser_viewer(args)
     with timed(timing_s, "imports"):
@@ -272,6 +302,7 @@ def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainA
     if not ranks.distributed and cfg.env.device != "cpu" and not torch.cuda.is_available():  # torchrun: per process
         raise ConfigError(NO_CUDA.format(cfg.env.device))
     members = members_of(args.population.seeds, args.population.vary) if population else []
+    modes = args.population.modes(cfg.env.seed) if population else []
 
     def building():
         if ranks.writes:
@@ -283,7 +314,7 @@ def train(cfg: TrainConfig, run_dir: Path, checkpoint: Path | None, args: TrainA
     training, result = None, None
     try:
         training = Training(cfg, run_dir, resume_from=checkpoint, ranks=ranks, timing_s=timing_s, members=members,
-                            until_first_solved=first_solved, before_build=building)
+                            modes=modes, before_build=building)
         if ranks.writes:
             announce(training, args, training.run_dir, checkpoint)
         result = training.run()
@@ -315,6 +346,8 @@ def announce(training, args: TrainArgs, run_dir: Path, checkpoint: Path | None):
         print(f"with --learner {training.cfg.agent.learner} its settings and the task's: {settings} (a flag changes "
               "any)",
               flush=True)
+    for mode in training.loop.modes:
+        print(f"population mode: {mode.describe()}", flush=True)
     hooks = IterationHooks()
     if args.viewer == "viser":
         from .viz.web import TrainingView

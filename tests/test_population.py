@@ -18,6 +18,7 @@ from test_train_cli import REPO, only_run
 from cartpole_warp import tasks
 from cartpole_warp.rl.config import train_config
 from cartpole_warp.rl.loop import TrainingLoop
+from cartpole_warp.rl.modes import UntilFirstSolved
 from cartpole_warp.rl.population import members_of
 from cartpole_warp.rl.runs import (
     BEST_CHECKPOINT,
@@ -366,7 +367,7 @@ def test_a_population_until_its_first_solved_member_ends_there_and_plays_that_me
     cfg = train_config()
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 16, DEVICE, "none", 10
     cfg.eval.num_envs, cfg.eval.min_interval, cfg.eval.max_interval = 8, 1, 1
-    training = Training(cfg, tmp_path, members=members_of([7, 8, 9]), until_first_solved=True)
+    training = Training(cfg, tmp_path, members=members_of([7, 8, 9]), modes=[UntilFirstSolved()])
     judge = training.loop.evaluations.own_envs
     verdicts = iter([{}, {}, {1: EpisodeSummary(8, 590.0, 600.0, 0.99, 1.0, 8, 0.99)}])
     failing = EpisodeSummary(8, 10.0, 20.0, 0.5, 0.0)

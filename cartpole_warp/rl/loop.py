@@ -20,7 +20,7 @@ import functools
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import torch
 from tensordict import TensorDict
@@ -41,6 +41,16 @@ if TYPE_CHECKING:
     from .learners.batched_ppo.learner import Member
 
 
+class PopulationMode(Protocol):
+    """A population's mode (``rl.modes``), called after each iteration's books: ``after_iteration`` gives the members
+    still running; at the end ``annotate`` adds its entries to the members' rows (in place) and gives the
+    population's (``population.json``); ``describe`` says what it does, in words."""
+
+    def after_iteration(self, loop: TrainingLoop, it: int, running: list[int]) -> list[int]: ...
+    def annotate(self, loop: TrainingLoop, rows: list[dict]) -> dict: ...
+    def describe(self) -> str: ...
+
+
 class TrainingLoop:
     """The training of ``cfg`` on ``env``: one run (``members`` empty; by ``learner``, default: ``cfg.agent.learner``'s,
     built here; ``ranks``: the processes it spans, default torchrun's), or one run per member of ``members`` by
@@ -49,12 +59,12 @@ class TrainingLoop:
     writes nothing; else the run's folder, or the folder of the members' (``log_dir / member.name``). Evaluations run
     on ``eval_env`` (K blocks for K members) or, where ``env`` carries an ``InStepEvaluation`` (``eval.in_step``),
     inside the training's step. ``rsl_rl_cfg`` is rsl-rl's ``train_cfg`` dict of ``cfg``; ``prefix`` comes before
-    each of the loop's own console lines. ``until_first_solved``: every run ends in the iteration the first is judged
-    solved (the others 'outdone'), which ``first_solved`` names (of several: the best by the play metric)."""
+    each of the loop's own console lines. ``modes``: a population's (``rl.modes``: until its first solved member,
+    population-based training), called in order after each iteration's books."""
 
     def __init__(self, env: RslRlVecEnv, cfg: TrainConfig, log_dir: Path | None, eval_env: BatchedEnv | None = None,
                  learner: Learner | None = None, ranks: Ranks | None = None, members: Sequence[Member] = (),
-                 prefix: str = "", until_first_solved: bool = False):
+                 prefix: str = "", modes: Sequence[PopulationMode] = ()):
         self.env, self.config, self.device = env, cfg, env.device
         self.ranks = ranks if ranks is not None else SINGLE_PROCESS if members else Ranks.from_environment()
         rsl_rl = functools.partial(to_rsl_rl, mirror=env.obs_mirror is not None, images=env.images)
@@ -83,7 +93,7 @@ class TrainingLoop:
         self.iteration_s: list[float] = []
         """Each iteration's wall seconds, its evaluations, books and lines included."""
         self.evaluation_s = 0.0  # the seconds in the evaluations' judge
-        self.until_first_solved, self.first_solved = until_first_solved, None
+        self.modes = list(modes)
         self.on_iteration: Callable[[int, EpisodeSummary], None] | None = None
         """Called after each iteration's console line (by the process that writes) with the iteration and the first
         member's episodes' summary (the browser viewer's and ``--video``'s hook)."""
@@ -156,7 +166,9 @@ class TrainingLoop:
                 self.records[k].after_iteration(it, readout.episodes[k], readout.losses[k], readout.learning_rates[k],
                                                 readout.action_std[k], pace, verdicts.get(k), timing,
                                                 self._stop_requested)
-        still = self._first_solved(running) if self.until_first_solved else running
+        still = running
+        for mode in self.modes:
+            still = mode.after_iteration(self, it, still)
         still = [k for k in still if self.records[k].stop_reason is None]
         if self.members:
             self._population_lines(it, verdicts, still)
@@ -167,18 +179,6 @@ class TrainingLoop:
                 self.learner.retire(k)
                 self.records[k].finish()
         return still
-
-    def _first_solved(self, running: list[int]) -> list[int]:
-        """Once a run is judged solved, the first (``first_solved``) and the end of the others: 'solved' where they
-        were too, else 'outdone'; the runs still going out."""
-        metric = self.config.task_spec.play_metric
-        solved = [k for k in running if self.records[k].progress.solved_at is not None]
-        if not solved:
-            return running
-        self.first_solved = max(solved, key=lambda k: (self.records[k].progress.best[metric] or 0.0, -k))
-        for k in running:
-            self.records[k].stop_reason = "solved" if k in solved else "outdone"
-        return []
 
     def _population_lines(self, it: int, verdicts: dict, running: list[int]):
         """A population's console (``progress.population_lines``)."""

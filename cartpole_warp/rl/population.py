@@ -38,6 +38,12 @@ if TYPE_CHECKING:
     from .loop import TrainingLoop
 
 
+def setting_name(flag: str) -> str:
+    """A setting's name as ``agent.algorithm`` holds it, of its flag (``agent.algorithm.learning-rate``,
+    ``learning-rate``)."""
+    return flag.strip().replace("-", "_").removeprefix("agent.algorithm.")
+
+
 def parse_vary(vary: list[str]) -> dict[str, list[float]]:
     """``--population.vary`` entries (``agent.algorithm.learning-rate=1e-3,3e-4``) as {setting: values};
     ConfigError in one line for a setting members cannot differ in, a value that is not a number, or a setting named
@@ -45,7 +51,7 @@ def parse_vary(vary: list[str]) -> dict[str, list[float]]:
     grid: dict[str, list[float]] = {}
     for entry in vary:
         name, sep, values = entry.partition("=")
-        setting = name.strip().replace("-", "_").removeprefix("agent.algorithm.")
+        setting = setting_name(name)
         flag = f"--population.vary {entry!r}"
         if not sep or not values:
             raise ConfigError(f"{flag}: write name=value1,value2 (agent.algorithm.learning-rate=1e-3,3e-4)")
@@ -100,11 +106,14 @@ def write_population(loop: TrainingLoop, summaries: list[RunSummary], run_dir: P
     process returns the whole), after ``loop`` trained this process's members (whose ``summaries`` these are) for
     ``train_time_s``: the members' rows (``member_rows``); the population's wall time (its slowest process's), env
     steps, and the pace of its median iterations (evaluations, checkpoints and lines included; summed over the
-    processes); where it ended at its first solved member (``TrainingLoop.first_solved``), that member's name and its
-    policy in ``run_dir`` (``runs.copy_policy``)."""
+    processes); its modes' entries (``rl.modes``), and where it ended at its first solved member, that member's policy
+    in ``run_dir`` (``runs.copy_policy``)."""
     cfg, metric = loop.config, loop.config.task_spec.play_metric
     median_s = statistics.median(loop.iteration_s) if loop.iteration_s else None
-    parts = from_every_rank({"rows": member_rows(loop.members, summaries, metric), "train_time_s": train_time_s,
+    rows, modes = member_rows(loop.members, summaries, metric), {}
+    for mode in loop.modes:
+        modes |= mode.annotate(loop, rows)
+    parts = from_every_rank({"rows": rows, "train_time_s": train_time_s,
                              "evaluation_s": loop.evaluation_s, "setup_time_s": setup_time_s,
                              "num_envs": loop.env.num_envs, "median_iteration_s": median_s,
                              "env_steps": sum(summary.env_steps for summary in summaries),
@@ -124,9 +133,8 @@ def write_population(loop: TrainingLoop, summaries: list[RunSummary], run_dir: P
                                                             for part in parts)) if paced else None,
               "num_envs": sum(part["num_envs"] for part in parts), "device": loop.env.device,
               "processes": ranks.world_size,
-              "median_solved_s": statistics.median(solved_s) if solved_s else None,
-              "first_solved": None if loop.first_solved is None else loop.members[loop.first_solved].name}
-    if result["first_solved"] is not None:  # the population's policy: its first solved member's
+              "median_solved_s": statistics.median(solved_s) if solved_s else None} | modes
+    if result.get("first_solved") is not None:  # the population's policy: its first solved member's
         copy_policy(run_dir / result["first_solved"], run_dir)
     if ranks.writes:
         write_text(run_dir / POPULATION_FILE, json.dumps(result, indent=2) + "\n")
@@ -135,14 +143,18 @@ def write_population(loop: TrainingLoop, summaries: list[RunSummary], run_dir: P
 
 
 def members_table(rows: list[dict], metric: str) -> str:
-    """The members' markdown table (``write_population``'s rows)."""
-    lines = [f"| member | status | solved at iteration | solved after s | {metric} | iterations | seconds |",
-             "|---|---|---|---|---|---|---|"]
+    """The members' markdown table (``write_population``'s rows), with the states each took, under population-based
+    training (``rl.modes.Exploitation``: iteration, member)."""
+    lineage = any("lineage" in row for row in rows)
+    extra = (" took the state of |", "---|") if lineage else ("", "")
+    lines = [f"| member | status | solved at iteration | solved after s | {metric} | iterations | seconds |{extra[0]}",
+             "|---|---|---|---|---|---|---|" + extra[1]]
     for row in rows:
         value = f"{row[metric]:.3f}" if row[metric] is not None else "-"
+        took = ", ".join(f"{member} at {iteration}" for iteration, member in row.get("lineage", ())) or "-"
         lines.append(f"| {row['member']} | {row['status']} | {row['solved_iterations'] or '-'} | "
                      f"{row['solved_s'] if row['solved_s'] is not None else '-'} | {value} | {row['iterations']} | "
-                     f"{row['train_time_s']} |")
+                     f"{row['train_time_s']} |" + (f" {took} |" if lineage else ""))
     return "\n".join(lines) + "\n"
 
 __getattr__ = moved_names(__name__, f"{__package__}.learners.batched_ppo.learner")

@@ -38,6 +38,8 @@ BEST_CHECKPOINT = "model_best.pt"
 """The checkpoint whose evaluation was the best of the run (play.py's default)."""
 MEMBERS_FILE, POPULATION_FILE = "members.md", "population.json"
 """A population's folder: its members' table and its own summary (each member a run folder beside them)."""
+LINEAGE_FILE = "lineage.json"
+"""A population member's exploits under population-based training (``rl.modes.Exploitation``), in its run folder."""
 _CHECKPOINT = re.compile(r"^model_(\d+)\.pt$")
 
 

@@ -28,7 +28,8 @@ from .config import TrainConfig
 from .distributed import SINGLE_PROCESS, Ranks, from_rank_zero, join_process_group
 from .learners import learner_class
 from .learners.batched_ppo.learner import BatchedPpoLearner, Member
-from .loop import TrainingLoop
+from .loop import PopulationMode, TrainingLoop
+from .modes import check_modes
 from .policies import to_rsl_rl
 from .population import check_population, write_population
 from .record import solved_definition
@@ -125,14 +126,14 @@ class Training:
     one env of K x N envs (N = ``env.num_envs``) and writing an ordinary run folder, ``run_dir / member.name``. In a
     torchrun job (``ranks``) a run's processes each train its own envs on their own GPU with seed + rank, and rank 0
     alone writes the run folder; a population's each train their share of the members, in rank 0's ``run_dir``.
-    ``until_first_solved``: a population ends in the iteration its first member is judged solved, and its folder then
-    holds that member's policy (``runs.copy_policy``). ``before_build`` is called once the training is checked
+    ``modes``: a population's (``rl.modes``): until its first solved member (whose policy its folder then holds:
+    ``runs.copy_policy``), population-based training. ``before_build`` is called once the training is checked
     (ConfigError where it cannot run or would not fit), before its envs are built; ``setup_time_s`` counts from
     there."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, resume_from: Path | None = None,
                  ranks: Ranks = SINGLE_PROCESS, timing_s: dict[str, float] | None = None,
-                 members: Sequence[Member] = (), until_first_solved: bool = False,
+                 members: Sequence[Member] = (), modes: Sequence[PopulationMode] = (),
                  before_build: Callable[[], None] | None = None):
         self.cfg, self.ranks = cfg.validate(), ranks
         if cfg.agent.logger == "wandb" and importlib.util.find_spec("wandb") is None:
@@ -141,6 +142,7 @@ class Training:
         """Before each console line of a population's process."""
         if members and resume_from is not None:
             raise ConfigError("a population starts afresh; resume one member's run folder instead")
+        check_modes(modes, len(members), ranks.distributed)
         self.all_members, self.members = list(members), ranks.share(list(members)) if members else []
         env_cfg = self._process_env_config()
         self.run_dir = Path(from_rank_zero(Path(run_dir), ranks) if members else run_dir)
@@ -154,7 +156,7 @@ class Training:
         self.timing_s = (timing_s if timing_s is not None else {}) | self.env.env.build_time_s
         """Where the training's seconds went, by phase (after those of ``timing_s``, e.g. train.py's); each
         summary.json keeps them."""
-        self.loop = self._build_loop(env_cfg, until_first_solved)
+        self.loop = self._build_loop(env_cfg, modes)
         with timed(self.timing_s, "eval_env"):
             self.loop.evaluations.prepare()
             if resume_from is not None:
@@ -199,7 +201,7 @@ class Training:
             batched.restart(k * n, (k + 1) * n, member.seed)
         return RslRlVecEnv(batched, InStepEvaluation(batched, extra, self.cfg.env.seed) if in_step else None)
 
-    def _build_loop(self, env_cfg: EnvConfig, until_first_solved: bool) -> TrainingLoop:
+    def _build_loop(self, env_cfg: EnvConfig, modes: Sequence[PopulationMode]) -> TrainingLoop:
         """The learner (a population's built here, before its evaluation envs), the evaluation's envs (where they are
         envs of their own, in a process that judges), the loop."""
         cfg, env, members = self.cfg, self.env, self.members
@@ -217,7 +219,7 @@ class Training:
         with timed(self.timing_s, "networks"):
             return TrainingLoop(env, dataclasses.replace(cfg, env=env_cfg),
                                 self.run_dir if members or self.ranks.writes else None, eval_env, learner,
-                                SINGLE_PROCESS if members else self.ranks, members, self.prefix, until_first_solved)
+                                SINGLE_PROCESS if members else self.ranks, members, self.prefix, modes)
 
     @property
     def solved_definition(self) -> str:

@@ -24,8 +24,7 @@ from ...policies import build_networks
 from .. import Readout
 from .update import PPO_ADAM_BETAS, PPO_ADAM_EPS, BatchedActorCritic, PopulationPPO
 
-VARIABLE_SETTINGS = ("learning_rate", "entropy_coef", "gamma", "lam", "clip_param", "desired_kl", "value_loss_coef",
-                     "max_grad_norm")
+VARIABLE_SETTINGS = PopulationPPO.SETTINGS
 """PPO's settings (``agent.algorithm``) members may differ in: they keep the networks' shapes and the env."""
 
 
@@ -207,6 +206,21 @@ class BatchedPpoLearner:
         self.ppo.model.load_member_state_dicts(
             member, loaded["actor_state_dict"] if parts.get("actor") else actor_state,
             loaded["critic_state_dict"] if parts.get("critic") else critic_state)
+
+    def exploit(self, source: int, target: int):
+        """Population-based training's exploit: member ``source``'s networks, Adam state, normalisers and settings over
+        member ``target``'s (``PopulationPPO.copy_member``); the others' untouched."""
+        self.ppo.copy_member(source, target)
+
+    def member_settings(self, member: int) -> dict[str, float]:
+        """The ``VARIABLE_SETTINGS`` ``member`` trains with now (its learning rate as adapted)."""
+        return {name: getattr(self.ppo, name)[member].item() for name in VARIABLE_SETTINGS}
+
+    @torch.no_grad()
+    def set_member_settings(self, member: int, settings: dict[str, float]):
+        """Set some of ``member``'s ``VARIABLE_SETTINGS`` (in place: a captured update reads them next time)."""
+        for name, value in settings.items():
+            getattr(self.ppo, name)[member] = value
 
     def release_graphs(self):
         for graph in self._graphs or ():

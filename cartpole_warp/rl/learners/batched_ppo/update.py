@@ -422,6 +422,30 @@ class PopulationPPO:
         value_loss = value_error(values, old_values, returns, clip, self.use_clipped_value_loss).mean(1)
         return surrogate.mean(1), value_loss, entropy
 
+    SETTINGS = ("learning_rate", "entropy_coef", "gamma", "lam", "clip_param", "desired_kl", "value_loss_coef",
+                "max_grad_norm")
+    """The (K,) settings tensors: ``learning_rate`` the current (adapted) rate, the others as given."""
+
+    def member_state(self, k: int) -> dict[str, torch.Tensor]:
+        """Member ``k``'s whole training state, by name (views): its parameters (networks and std), Adam's moments and
+        step count, its normalisers' statistics and its ``SETTINGS``."""
+        model = self.model
+        normalizers = [(name, normalizer) for name, normalizer in (("actor_normalizer", model.actor_normalizer),
+                                                                    ("critic_normalizer", model.critic_normalizer))
+                       if normalizer is not None]
+        state = {"params": model.params.detach()[k], "exp_avg": self.exp_avg[k], "exp_avg_sq": self.exp_avg_sq[k],
+                 "adam_steps": self.adam_steps[k]}
+        state |= {f"{name}.{buffer}": getattr(normalizer, buffer)[k] for name, normalizer in normalizers
+                  for buffer in ("mean", "var", "std", "count")}
+        return state | {name: getattr(self, name)[k] for name in self.SETTINGS}
+
+    @torch.no_grad()
+    def copy_member(self, source: int, target: int):
+        """Member ``source``'s whole state (``member_state``) copied over member ``target``'s, in place (a captured
+        graph's tensors stay where they are); every other member's is untouched."""
+        for into, value in zip(self.member_state(target).values(), self.member_state(source).values(), strict=True):
+            into.copy_(value)
+
     def _adapt_learning_rate(self, kl_mean: torch.Tensor):
         """rsl-rl's rule (``ppo_rules.adaptive_kl_rate``) per active member."""
         lr = self.learning_rate
