@@ -138,6 +138,7 @@ def test_the_runner_is_one_loop_over_learners_found_by_name():
                                                             for base in node.bases)]
     assert subclasses == []
     assert {name: learner_class(name).__name__ for name in LEARNERS} == {"ppo": "PpoLearner", "shac": "ShacLearner",
-                                                                         "sapg": "SapgLearner"}
-    with pytest.raises(KeyError, match="no learner 'sac'; the learners: ppo, shac, sapg"):
+                                                                         "sapg": "SapgLearner",
+                                                                         "fasttd3": "FastTd3Learner"}
+    with pytest.raises(KeyError, match="no learner 'sac'; the learners: ppo, shac, sapg, fasttd3"):
         learner_class("sac")

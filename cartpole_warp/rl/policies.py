@@ -56,6 +56,17 @@ class SyncFreeGaussian(GaussianDistribution):
             return gaussian_sample(self.mean, self.std)
 
 
+class SquashedGaussian(SyncFreeGaussian):
+    """``SyncFreeGaussian`` whose deterministic output is tanh(mean): a deterministic policy's actions in [-1, 1] (the
+    off-policy learner's actor, ``agent.learner: fasttd3``), in training, in play and in the exports."""
+
+    def deterministic_output(self, mlp_output: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(mlp_output)
+
+    def as_deterministic_output_module(self) -> torch.nn.Module:
+        return torch.nn.Tanh()
+
+
 class NullLogWriter(LogWriter):
     """Metrics writer for ``agent.logger: none``: checkpoints and summary are still written, metrics are not."""
 
@@ -64,6 +75,23 @@ class NullLogWriter(LogWriter):
 
     def add_scalar(self, tag: str, scalar_value: float, global_step: int) -> None:
         """Drop the metric."""
+
+
+def update_normalization(models, obs: TensorDict | torch.Tensor):
+    """rsl-rl's observation-normalizer update of each of ``models`` (an ``MLPModel``'s ``update_normalization`` of a
+    TensorDict, a bare ``EmpiricalNormalization``'s ``update`` of a tensor), its statistics kept in the tensors they
+    started in: rsl-rl's update binds a new tensor to ``_std``, which captured rollouts and updates would never read
+    (they would normalise with the std of the capture forever)."""
+    for model in models:
+        normalizer = getattr(model, "obs_normalizer", model)
+        std = getattr(normalizer, "_std", None)
+        if normalizer is model:
+            model.update(obs)
+        else:
+            model.update_normalization(obs)
+        if isinstance(std, torch.Tensor) and normalizer._std is not std:
+            std.copy_(normalizer._std)
+            normalizer._std = std
 
 
 def read_checkpoint(path: str | Path, device: str) -> dict:
@@ -142,6 +170,8 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -
         cfg["algorithm"]["class_name"] = SYNC_FREE_PPO
         cfg["algorithm"]["cuda_graph"] = agent.cuda_graph
         cfg["actor"]["distribution_cfg"]["class_name"] = _path(SyncFreeGaussian)
+    if agent.learner == "fasttd3":
+        cfg["actor"]["distribution_cfg"]["class_name"] = _path(SquashedGaussian)
     cfg["critic"]["class_name"] = "MLPModel"
     cfg["obs_groups"] = {"actor": ["policy"], "critic": ["policy"]}
     if images:

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 import pydantic
 
-from .config import NO_UNKNOWN_KEYS, Count, Flag, Fraction, Name, NonNegative, Positive
+from .config import NO_UNKNOWN_KEYS, Count, Finite, Flag, Fraction, Name, NonNegative, Positive
 from .deprecation import REMOVED_IN, renamed
 
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
@@ -20,21 +20,25 @@ Schedule = Literal["adaptive", "fixed"]
 Algorithm = Literal["PPO", "SyncFreePPO"]
 """rsl-rl's ``PPO``, or ``SyncFreePPO`` (``rl.learners.ppo``: the same update without host syncs)."""
 MetricsLogger = Literal["tensorboard", "wandb", "none"]
-Learner = Literal["ppo", "shac", "sapg"]
+Learner = Literal["ppo", "shac", "sapg", "fasttd3"]
 """'ppo' (rsl-rl's PPO on the env's transitions), 'shac' (``rl.learners.shac``: short-horizon analytic policy gradients
-through the simulator, with a critic) or 'sapg' (``rl.learners.sapg``: a leader PPO policy learning from its
-followers' envs too)."""
+through the simulator, with a critic), 'sapg' (``rl.learners.sapg``: a leader PPO policy learning from its
+followers' envs too) or 'fasttd3' (``rl.learners.fast_td3``: off-policy TD3 with a distributional twin critic and a
+replay of every env's transitions on the device)."""
 LEARNER_DEFAULTS: dict[str, dict] = {
     "shac": {"env": {"num_envs": 64}, "agent": {"num_steps_per_env": 32, "max_iterations": 100,
                                                 "actor": {"obs_normalization": False, "hidden_dims": [32, 32]},
                                                 "critic": {"obs_normalization": False, "hidden_dims": [32, 32]}},
              "eval": {"in_step": False}},
+    "fasttd3": {"agent": {"num_steps_per_env": 8, "actor": {"obs_normalization": True, "hidden_dims": [256, 128, 64]}},
+                "eval": {"in_step": False}},
 }
 """What a learner changes in every task's defaults (``env``, ``agent`` and run sections), before what a task tunes
 for it (``tasks.TaskSettings.for_learner``) and a preset; 'ppo' and 'sapg' take the task's own. SHAC: 64 envs,
 windows of 32 env steps, no observation normalisation (with it the swing-up's actor stalled), 32 x 32 networks on
 every device (a task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its
-envs itself); chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation")."""
+envs itself); chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation"). FastTD3:
+iterations of 8 env steps, a normalised 256-128-64 actor on every device, evaluations on envs of their own."""
 PPO_UPDATE_LEARNERS = ("ppo", "sapg")
 """The learners whose update is PPO's (``algorithm``'s settings, whose mini-batches must split a rollout evenly)."""
 RENAMED_LEARNERS = {"apg": "shac"}
@@ -175,6 +179,61 @@ class ShacConfig:
 
 
 @dataclass
+class FastTd3Config:
+    """Off-policy TD3 for many parallel envs (``rl.learners.fast_td3``, after FastTD3: Seo et al. 2025): every env
+    step of every env goes into a replay on the device; after each iteration's ``num_steps_per_env`` steps the learner
+    takes ``num_updates`` gradient steps per env step of a distributional twin critic (``num_atoms`` atoms on
+    [``v_min``, ``v_max``], clipped double Q), and of the deterministic actor every ``policy_frequency``-th. Defaults:
+    FastTD3's, but the smaller critic (FastTD3's is 1024-512-256), the replay's length and the support, which holds
+    this project's returns (rewards of at most 1 per step, discounted by 0.99)."""
+
+    __pydantic_config__ = NO_UNKNOWN_KEYS
+
+    actor_learning_rate: Positive = 3.0e-4
+    """AdamW learning rate of the actor."""
+    critic_learning_rate: Positive = 3.0e-4
+    """AdamW learning rate of the critics."""
+    weight_decay: NonNegative = 0.1
+    """AdamW weight decay of both."""
+    gamma: Annotated[Fraction, pydantic.Field(gt=0)] = 0.99
+    """Discount factor per env step."""
+    tau: Annotated[Fraction, pydantic.Field(gt=0)] = 0.1
+    """The target critics follow the critics by target = (1 - tau) target + tau critic after each gradient step."""
+    batch_size: Count = 32768
+    """Transitions per gradient step, drawn uniformly from the replay (twice as many with the mirror images)."""
+    replay_steps: Count = 1024
+    """Env steps of every env the replay holds (the oldest overwritten)."""
+    num_updates: Count = 2
+    """Gradient steps of the critics per env step."""
+    policy_frequency: Count = 2
+    """The actor takes a gradient step every this many of the critics'."""
+    critic_hidden_dims: list[Count] = field(default_factory=lambda: [512, 256, 128])
+    """Hidden layers of each critic (ReLU), on the observation and the action."""
+    num_atoms: Annotated[int, pydantic.Field(ge=2)] = 101
+    """Atoms of each critic's distribution of returns."""
+    v_min: Finite = -10.0
+    """The lowest atom (returns below it count as it)."""
+    v_max: Finite = 110.0
+    """The highest atom."""
+    std_min: NonNegative = 0.001
+    """Exploration: each env acts with Gaussian noise of a std drawn from U(std_min, std_max), drawn again when its
+    episode ends."""
+    std_max: NonNegative = 0.4
+    """The largest exploration noise."""
+    policy_noise: NonNegative = 0.001
+    """Target policy smoothing: the std of the noise on the next action in the critics' targets."""
+    noise_clip: NonNegative = 0.5
+    """The smoothing noise is clipped to +-noise_clip."""
+    init_scale: Positive = 0.01
+    """The actor's last layer starts with weights ~ N(0, init_scale) and zero biases."""
+    max_grad_norm: Positive | None = None
+    """Gradient norm clip of each network (None: none, FastTD3's default)."""
+    symmetry: Flag = True
+    """Where the task has a mirror: every sampled batch is followed by its mirror image (states, actions, next
+    states)."""
+
+
+@dataclass
 class SapgConfig:
     """Split and aggregate policy gradients (``rl.learners.sapg``, after SAPG: Singla, Agarwal and Pathak, ICML 2024):
     the run's envs are ``num_blocks`` blocks of ``env.num_envs`` envs, each block a policy's: block 0 the leader's, the
@@ -232,10 +291,12 @@ class RunnerConfig:
     learner: Learner = "ppo"
     """The learner (``train.py --learner``): 'ppo', rsl-rl's PPO (settings ``algorithm``); 'shac', short-horizon
     analytic policy gradients through the simulator (``shac``); 'sapg', a PPO leader learning from followers' envs too
-    (``sapg`` and ``algorithm``); docs/training.md says what each trains."""
+    (``sapg`` and ``algorithm``); 'fasttd3', off-policy TD3 from a replay on the device (``fasttd3``);
+    docs/training.md says what each trains."""
     algorithm: PpoConfig = field(default_factory=PpoConfig)
     shac: ShacConfig = field(default_factory=ShacConfig)
     sapg: SapgConfig = field(default_factory=SapgConfig)
+    fasttd3: FastTd3Config = field(default_factory=FastTd3Config)
     actor: ActorConfig = field(default_factory=ActorConfig)
     critic: ModelConfig = field(default_factory=ModelConfig)
 

@@ -1,8 +1,8 @@
-"""The learners, a folder each (``ppo``, ``batched_ppo``, ``sapg``, ``shac``), and the seam between the training loop
-and what learns: a ``Learner`` of one run or K (a population's members) runs one iteration (act, step, learn) of them
-all on the env, reads out each member's figures (``Readout``), holds the state each member's checkpoint keeps, and
-names the policies an evaluation judges; ``learner_class`` finds one by its name (``agent.learner``: ``train.py
---learner NAME``). A learner imports no other's folder unless built on it (``sapg`` on ``batched_ppo``).
+"""The learners, a folder each (``ppo``, ``batched_ppo``, ``sapg``, ``shac``, ``fast_td3``), and the seam between the
+training loop and what learns: a ``Learner`` of one run or K (a population's members) runs one iteration (act, step,
+learn) of them all on the env, reads out each member's figures (``Readout``), holds the state each member's checkpoint
+keeps, and names the policies an evaluation judges; ``learner_class`` finds one by its name (``agent.learner``:
+``train.py --learner NAME``). A learner imports no other's folder unless built on it (``sapg`` on ``batched_ppo``).
 
     learner = learner_class(cfg.agent.learner)(env, cfg, rsl_rl_cfg, EpisodeStats(env.device, max_episode_length))
     obs, losses = learner.iteration(obs, it)
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from ..distributed import Ranks
 
 LEARNERS = {"ppo": f"{__name__}.ppo.learner:PpoLearner", "shac": f"{__name__}.shac.learner:ShacLearner",
-            "sapg": f"{__name__}.sapg.learner:SapgLearner"}
+            "sapg": f"{__name__}.sapg.learner:SapgLearner", "fasttd3": f"{__name__}.fast_td3.learner:FastTd3Learner"}
 """Each learner's class by name, imported when asked for (the backpropagation learner imports the differentiable
 rollout, which a PPO run need not load)."""
 

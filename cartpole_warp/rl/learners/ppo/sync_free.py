@@ -26,6 +26,7 @@ from torch import nn
 
 from ....engine.streams import TorchGraph
 from ....settings.deprecation import moved_names
+from ...policies import update_normalization
 from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
 
 
@@ -106,22 +107,10 @@ class SyncFreePPO(PPO):
             self._gradient_steps()
         else:
             self._graph(self._gradient_steps)
-        self._update_normalization(st.observations.flatten(0, 1))
+        update_normalization((self.actor, self.critic), st.observations.flatten(0, 1))
         st.clear()
         value, surrogate, entropy = (self._sums / (self.num_learning_epochs * self.num_mini_batches)).tolist()
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
-
-    def _update_normalization(self, obs):
-        """rsl-rl's observation-normalizer update, its statistics kept in the tensors they started in: its update binds
-        a new tensor to ``_std``, which captured rollouts and updates would never read (they normalise with the std of
-        the capture forever)."""
-        for model in (self.actor, self.critic):
-            normalizer = getattr(model, "obs_normalizer", None)
-            std = getattr(normalizer, "_std", None)
-            model.update_normalization(obs)
-            if isinstance(std, torch.Tensor) and normalizer._std is not std:
-                std.copy_(normalizer._std)
-                normalizer._std = std
 
     def _gradient_steps(self):
         """Every epoch's mini-batches (slices of ``_permutation`` over the flattened rollout, as rsl-rl's
