@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 from .. import tasks
 from ..settings.agent import (
+    LEARNER_CPU_DEFAULTS,
     LEARNER_DEFAULTS,
     PPO_UPDATE_LEARNERS,
     ActorConfig,
@@ -96,7 +97,7 @@ def train_config(task: str = tasks.DEFAULT_TASK, preset: str | None = None, devi
     _apply(cfg, spec.settings.common)
     _apply(cfg, spec.settings.for_device(run_device or cfg.env.device))
     if chosen is not None:
-        apply_overrides(cfg, LEARNER_DEFAULTS.get(chosen, {}))
+        apply_overrides(cfg, own_learner_defaults(chosen, run_device or cfg.env.device))
         _apply(cfg, spec.settings.for_learner.get(chosen))
         cfg.agent.learner = chosen
     data = dataclasses.asdict(cfg)
@@ -151,17 +152,24 @@ def gpu_settings(cfg: TrainConfig) -> dict[str, object]:
     return device_settings(cfg) if on_gpu(cfg.env.device) else {}
 
 
-def learner_defaults(task: tasks.Task, learner: str) -> dict:
-    """What ``learner`` changes in ``task``'s runs: its own defaults (``settings.agent.LEARNER_DEFAULTS``), then what
-    the task tunes for it (``TaskSettings.for_learner``), as nested overrides."""
+def own_learner_defaults(learner: str, device: str) -> dict:
+    """What ``learner`` changes in every task's runs on ``device``: ``settings.agent.LEARNER_DEFAULTS``, on a CPU
+    then ``LEARNER_CPU_DEFAULTS``, as nested overrides."""
     own = LEARNER_DEFAULTS.get(learner, {})
+    return own if on_gpu(device) else merge(own, LEARNER_CPU_DEFAULTS.get(learner, {}))
+
+
+def learner_defaults(task: tasks.Task, learner: str, device: str = "cuda") -> dict:
+    """What ``learner`` changes in ``task``'s runs on ``device``: its own defaults (``own_learner_defaults``), then
+    what the task tunes for it (``TaskSettings.for_learner``), as nested overrides."""
+    own = own_learner_defaults(learner, device)
     return merge(own, changed_by(task, task.settings.for_learner.get(learner), [task.settings.common, own]))
 
 
 def learner_settings(cfg: TrainConfig) -> dict[str, object]:
-    """The settings ``cfg``'s learner and the task choose for it (``learner_defaults``), as ``gpu_settings``; {} where
-    they choose none (PPO, ``sapg``)."""
-    return chosen_settings(cfg, learner_defaults(cfg.task_spec, cfg.agent.learner))
+    """The settings ``cfg``'s learner and the task choose for it on its device (``learner_defaults``), as
+    ``gpu_settings``; {} where they choose none (PPO, ``sapg``)."""
+    return chosen_settings(cfg, learner_defaults(cfg.task_spec, cfg.agent.learner, cfg.env.device))
 
 
 def chosen_settings(cfg: TrainConfig, defaults: dict) -> dict[str, object]:

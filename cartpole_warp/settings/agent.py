@@ -39,6 +39,13 @@ windows of 32 env steps, no observation normalisation (with it the swing-up's ac
 every device (a task's PPO may take narrower ones on a CPU), evaluations on envs of their own (the learner steps its
 envs itself); chosen on the balance and the swing-up (docs/benchmarks.md, "Training by backpropagation"). FastTD3:
 iterations of 8 env steps, a normalised 256-128-64 actor on every device, evaluations on envs of their own."""
+LEARNER_CPU_DEFAULTS: dict[str, dict] = {
+    "fasttd3": {"env": {"num_envs": 256}, "agent": {"actor": {"hidden_dims": [64, 64]},
+                                                    "fasttd3": {"batch_size": 512, "critic_hidden_dims": [128, 128]}}},
+}
+"""What a learner changes on a CPU, after ``LEARNER_DEFAULTS``: FastTD3's batch of 32,768 and its critic are for a
+GPU (on the 2-core CPU one iteration of them takes over a minute); with these, 256 envs, a batch of 512 and a
+128-128 critic, the balance trains in seconds there (docs/benchmarks.md, "Issue 74 ..., session 31")."""
 PPO_UPDATE_LEARNERS = ("ppo", "sapg")
 """The learners whose update is PPO's (``algorithm``'s settings, whose mini-batches must split a rollout evenly)."""
 RENAMED_LEARNERS = {"apg": "shac"}
