@@ -91,30 +91,39 @@ class PopulationArgs:
     else their training return); each of the bottom --population.exploit-fraction takes the whole state of one of the
     top (networks, optimiser, normalisers, settings) and perturbs its settings. Its lineage: members.md and its
     folder's lineage.json."""
-    exploit_fraction: float = 0.25
+    exploit_fraction: float | None = None
     """--population.exploit-interval: the share of members that take a top one's state, and of those they take from
-    (at least one, at most half)."""
+    (at least one, at most half; None: 0.25)."""
     perturb: list[str] = field(default_factory=list)
     """--population.exploit-interval: the settings perturbed after an exploit (empty: every one --population.vary
     takes, but the learning rate under the adaptive schedule and desired-kl under the fixed one)."""
-    perturb_factor: float = 1.2
+    perturb_factor: float | None = None
     """--population.exploit-interval: each perturbed setting is scaled by this or its inverse, at random (gamma and
-    lam: their horizon, 1 - value)."""
+    lam: their horizon, 1 - value; None: 1.2)."""
+
+    def pbt_flags(self) -> list[str]:
+        """The population-based training flags given (``--population.exploit-interval`` and those it takes)."""
+        given = {"--population.exploit-interval": self.exploit_interval, "--population.exploit-fraction":
+                 self.exploit_fraction, "--population.perturb": self.perturb or None,
+                 "--population.perturb-factor": self.perturb_factor}
+        return [flag for flag, value in given.items() if value is not None]
 
     def modes(self, seed: int) -> list:
         """The population's modes (``rl.modes``) these flags ask for, drawing from ``seed``; ConfigError in one line
         for a bad value or an exploit's flag without --population.exploit-interval."""
         from .rl.modes import Exploitation, UntilFirstSolved
 
-        pbt = {"--population.exploit-fraction": self.exploit_fraction != 0.25, "--population.perturb": self.perturb,
-               "--population.perturb-factor": self.perturb_factor != 1.2}
-        given = [flag for flag, asked in pbt.items() if asked]
-        require(self.exploit_interval is not None or not given,
-                f"{', '.join(given)} set population-based training: give --population.exploit-interval N too")
+        require(self.exploit_interval is not None or not self.pbt_flags(),
+                f"{', '.join(self.pbt_flags())} set population-based training: give --population.exploit-interval N "
+                "too")
         modes = [UntilFirstSolved()] if self.until == "first-solved" else []
         if self.exploit_interval is not None:
-            modes.append(Exploitation(self.exploit_interval, self.exploit_fraction, self.perturb_factor,
-                                      tuple(self.perturb), seed))
+            defaults = Exploitation.__dataclass_fields__
+            modes.append(Exploitation(
+                self.exploit_interval,
+                defaults["fraction"].default if self.exploit_fraction is None else self.exploit_fraction,
+                defaults["factor"].default if self.perturb_factor is None else self.perturb_factor,
+                tuple(self.perturb), seed))
         return modes
 
 
@@ -253,8 +262,8 @@ def check_population_flags(args: TrainArgs, checkpoint: Path | None, ranks: Rank
     population = bool(args.population.seeds or args.population.vary)
     require(population or args.population.until != "first-solved",
             "--population.until first-solved ends a population: give --seeds")
-    require(population or args.population.exploit_interval is None,
-            "--population.exploit-interval trains a population: give --seeds")
+    if not population and (pbt := args.population.pbt_flags()):
+        raise ConfigError(f"{', '.join(pbt)}: population-based training trains a population: give --seeds")
     if population:
         require(checkpoint is None, "--seeds starts a population afresh; --resume one member's run folder instead")
         require(args.viewer == "none" and not args.video, "--seeds trains without --viewer or --video")

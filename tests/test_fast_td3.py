@@ -113,10 +113,12 @@ def tutorial_terminal(states: torch.Tensor) -> torch.Tensor:
 
 
 def test_the_stored_transitions_discount_terminations_to_zero_and_end_on_the_final_state(tmp_path):
-    """Four iterations of the balance with a fresh actor (episodes end): a transition's discount is 0 exactly where its
-    next state is terminal by the tutorial's rule, gamma elsewhere (time-outs bootstrap)."""
+    """Four iterations of the balance with a fresh actor, wild actions and a time limit of 12 steps (episodes fail
+    and time out): a transition's discount is 0 exactly where its next state is terminal by the tutorial's rule,
+    gamma elsewhere (time-outs bootstrap)."""
     cfg = train_config(learner="fasttd3")
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 32, "cpu", "none", 4
+    cfg.env.task.episode_length_s = 0.2
     cfg.agent.fasttd3.batch_size, cfg.agent.fasttd3.critic_hidden_dims = 64, [16]
     cfg.agent.fasttd3.std_min = cfg.agent.fasttd3.std_max = 1.0  # wild actions: many terminations
     training = Training(cfg, tmp_path)
@@ -126,7 +128,9 @@ def test_the_stored_transitions_discount_terminations_to_zero_and_end_on_the_fin
     rows = replay.data[:steps].flatten(0, 1)
     obs, actions, _, discounts, next_obs = rows.split(replay.widths, dim=-1)
     terminal = tutorial_terminal(next_obs)
-    assert terminal.sum() > 10, "episodes ended"
+    assert terminal.sum() > 10, "episodes failed"
+    history = training.loop.records[0].progress.history
+    assert any((h["time_limit_fraction"] or 0) > 0 for h in history), "episodes timed out"
     assert torch.equal(discounts[:, 0] == 0.0, terminal)
     assert torch.all(discounts[~terminal] == torch.tensor(cfg.agent.fasttd3.gamma))
     assert torch.all(actions.abs() <= 1.0)
@@ -158,6 +162,25 @@ def test_fasttd3_trains_the_balance_to_solved_with_its_cpu_defaults_and_its_fold
         x = x @ actor[f"{layer}.weight"].T + actor[f"{layer}.bias"]
         x = torch.nn.functional.elu(x) if i < len(layers) - 1 else torch.tanh(x)
     torch.testing.assert_close(exported(obs), x, rtol=1e-5, atol=1e-5)
+
+
+def test_a_checkpoint_of_a_gpu_run_resumes_on_a_cpu(tmp_path):
+    """A GPU run's optimizers step inside captured graphs (torch's capturable AdamW, step counts on the device): its
+    checkpoint loaded by a CPU run steps as the CPU's own optimizers do."""
+    cfg = train_config(learner="fasttd3")
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 16, "cpu", "none", 1
+    cfg.agent.fasttd3.batch_size, cfg.agent.fasttd3.critic_hidden_dims = 64, [16]
+    training = Training(cfg, tmp_path)
+    training.run()
+    learner = training.loop.learner
+    state = learner.state_dict()
+    for part in ("actor", "critic"):  # as a GPU run saves them
+        for group in state["optimizer_state_dict"][part]["param_groups"]:
+            group["capturable"] = True
+    learner.load_state_dict(state, None, strict=True)
+    assert all(not group["capturable"] for group in learner.critic_optimizer.param_groups)
+    learner.iteration(training.env.get_observations(), 1)
+    assert torch.isfinite(torch.cat([p.flatten() for p in learner.critic.parameters()])).all()
 
 
 def test_the_same_seed_trains_the_same_fasttd3_run(tmp_path):

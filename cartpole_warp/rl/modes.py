@@ -83,8 +83,9 @@ class Exploitation:
     scales each of its ``perturb`` settings by ``factor`` or 1 / ``factor``, at random (``perturbed``; a setting at 0
     stays 0). Draws from ``seed``. Each exploit is a line on the console and an entry of the member's lineage: its
     run folder's ``lineage.json`` (iteration, whose state it took, the two scores, its settings after) and the
-    population's ``members.md``; its ``config.yaml`` holds the settings it trains with since, so that its folder
-    resumes with them."""
+    population's ``members.md``; its checkpoint of that iteration then holds the state it took and its
+    ``config.yaml`` the settings it trains with since, so that its folder resumes with both (a folder named for a
+    ``--population.vary`` value keeps its name)."""
 
     interval: int
     fraction: float = 0.25
@@ -158,7 +159,8 @@ class Exploitation:
         record = loop.records[target]
         record.config = dataclasses.replace(record.config, agent=dataclasses.replace(
             record.config.agent, algorithm=dataclasses.replace(record.config.agent.algorithm, **settings)))
-        if record.run_dir is not None:
+        if record.run_dir is not None:  # its checkpoint of the state it took, then the settings it goes on with
+            record.save(record.run_dir / f"model_{it}.pt")
             save_config(record.run_dir, record.config)
             lineage = [entry for entry in self.events if entry["member"] == names[target]]
             write_text(record.run_dir / LINEAGE_FILE, json.dumps(lineage, indent=2) + "\n")

@@ -191,8 +191,9 @@ class FastTd3Config:
     step of every env goes into a replay on the device; after each iteration's ``num_steps_per_env`` steps the learner
     takes ``num_updates`` gradient steps per env step of a distributional twin critic (``num_atoms`` atoms on
     [``v_min``, ``v_max``], clipped double Q), and of the deterministic actor every ``policy_frequency``-th. Defaults:
-    FastTD3's, but the smaller critic (FastTD3's is 1024-512-256), the replay's length and the support, which holds
-    this project's returns (rewards of at most 1 per step, discounted by 0.99)."""
+    FastTD3's, but the smaller networks (the critic here, the actor's 256-128-64 in ``LEARNER_DEFAULTS``; FastTD3's
+    are 1024-512-256 and 512-256-128), the replay's length and the support, which holds this project's returns
+    (rewards of at most 1 per step, discounted by 0.99)."""
 
     __pydantic_config__ = NO_UNKNOWN_KEYS
 

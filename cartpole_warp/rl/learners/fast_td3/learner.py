@@ -79,10 +79,12 @@ class FastTd3Learner:
         self.critic = TwinDistributionalCritic(num_obs, env.num_actions, s.critic_hidden_dims, s.num_atoms, s.v_min,
                                                s.v_max).to(self.device)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
-        capturable = torch.device(self.device).type == "cuda"
+        graphed = cfg.agent.cuda_graph and torch.device(self.device).type == "cuda"
+        self.capturable = graphed
+        """The optimizers step inside captured graphs (torch's ``capturable`` Adam: its step counts on the device)."""
         self.actor_parameters = [p for name, p in self.actor.named_parameters() if name.startswith("mlp.")]
         self.actor_optimizer, self.critic_optimizer = (
-            torch.optim.AdamW(parameters, lr=lr, weight_decay=s.weight_decay, capturable=capturable)
+            torch.optim.AdamW(parameters, lr=lr, weight_decay=s.weight_decay, capturable=graphed)
             for parameters, lr in ((self.actor_parameters, s.actor_learning_rate),
                                    (list(self.critic.parameters()), s.critic_learning_rate)))
         self.replay = Replay(s.replay_steps, n, num_obs, env.num_actions, self.device)
@@ -93,7 +95,6 @@ class FastTd3Learner:
         self.mirror = (env.obs_mirror, env.action_mirror) if s.symmetry and env.obs_mirror is not None else None
         self.losses = torch.zeros(2, device=self.device)
         """The iteration's summed critic and actor losses."""
-        graphed = cfg.agent.cuda_graph and capturable
         self._graphs = (TorchGraph(self.device), TorchGraph(self.device)) if graphed else None
         self.on_step = None
         """Called with each step's rewards, dones and extras where set (rsl-rl's console); then nothing is captured."""
@@ -221,8 +222,20 @@ class FastTd3Learner:
         if parts.get("critic") and "critic_state_dict" in loaded:
             self.critic.load_state_dict(loaded["critic_state_dict"], strict=strict)
             self.target_critic.load_state_dict(loaded["target_critic_state_dict"], strict=strict)
-            self.actor_optimizer.load_state_dict(loaded["optimizer_state_dict"]["actor"])
-            self.critic_optimizer.load_state_dict(loaded["optimizer_state_dict"]["critic"])
+            for optimizer, part in ((self.actor_optimizer, "actor"), (self.critic_optimizer, "critic")):
+                optimizer.load_state_dict(loaded["optimizer_state_dict"][part])
+                self._fit_optimizer(optimizer)
+
+    def _fit_optimizer(self, optimizer: torch.optim.Optimizer):
+        """A loaded optimizer made to step as this learner's do (``capturable`` or not, its step counts where that
+        needs them: a checkpoint of a run on another device keeps its own)."""
+        for group in optimizer.param_groups:
+            group["capturable"] = self.capturable
+            for parameter in group["params"]:
+                state = optimizer.state.get(parameter, {})
+                if "step" in state:
+                    where = parameter.device if self.capturable else "cpu"
+                    state["step"] = state["step"].to(where, torch.float32)
 
     def release_graphs(self):
         for graph in self._graphs or ():
