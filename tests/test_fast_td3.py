@@ -183,6 +183,20 @@ def test_a_checkpoint_of_a_gpu_run_resumes_on_a_cpu(tmp_path):
     assert torch.isfinite(torch.cat([p.flatten() for p in learner.critic.parameters()])).all()
 
 
+def test_fasttd3_is_judged_inside_the_training_step_where_asked(tmp_path):
+    """``eval.in_step`` (off in the learner's defaults): the evaluation's envs step beside the training's, with a
+    frozen copy of the actor, and their verdicts reach the run's books."""
+    cfg = train_config(learner="fasttd3")
+    cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 16, "cpu", "none", 12
+    cfg.agent.fasttd3.batch_size, cfg.agent.fasttd3.critic_hidden_dims = 64, [16]
+    cfg.eval.in_step, cfg.eval.num_envs, cfg.eval.min_interval, cfg.eval.max_interval = True, 8, 1, 2
+    training = Training(cfg, tmp_path)
+    assert training.env.evaluation is not None and training.loop.learner.replay.num_envs == 16
+    training.run()
+    judged = [h["evaluation"] for h in training.loop.records[0].progress.history if "evaluation" in h]
+    assert judged and all(verdict["episodes"] > 0 for verdict in judged)
+
+
 def test_the_same_seed_trains_the_same_fasttd3_run(tmp_path):
     weights = []
     for name in ("a", "b"):
