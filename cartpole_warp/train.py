@@ -118,12 +118,9 @@ class PopulationArgs:
                 "too")
         modes = [UntilFirstSolved()] if self.until == "first-solved" else []
         if self.exploit_interval is not None:
-            defaults = Exploitation.__dataclass_fields__
-            modes.append(Exploitation(
-                self.exploit_interval,
-                defaults["fraction"].default if self.exploit_fraction is None else self.exploit_fraction,
-                defaults["factor"].default if self.perturb_factor is None else self.perturb_factor,
-                tuple(self.perturb), seed))
+            given = {"fraction": self.exploit_fraction, "factor": self.perturb_factor}
+            modes.append(Exploitation(self.exploit_interval, perturb=tuple(self.perturb), seed=seed,
+                                      **{name: value for name, value in given.items() if value is not None}))
         return modes
 
 
