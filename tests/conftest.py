@@ -147,6 +147,8 @@ def make():
 SMALL_FRAMES = {"width_px": 16, "height_px": 12}
 """The frames of a camera task in machinery tests (the machinery does not depend on the size; the CPU renders 64x64
 frames ~20x slower); tests of the pictures themselves use the task's own."""
+TRAINING_FRAMES = {"width_px": 36, "height_px": 36}
+"""The frames of a camera task in a machinery test that trains: the smallest its encoder takes."""
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ import sys
 
 import pytest
 import torch
-from conftest import DEVICE, call_main
+from conftest import DEVICE, TRAINING_FRAMES, call_main, sees_images
 from test_train_cli import REPO, only_run
 
 from cartpole_warp import tasks
@@ -35,12 +35,13 @@ from cartpole_warp.rl.training import Training
 from cartpole_warp.settings.config import ConfigError
 from cartpole_warp.wrappers.rsl_rl import RslRlVecEnv
 
-STATE_TASKS = [name for name in tasks.names() if not train_config(name).env.camera.enabled]
-
 
 def population(tmp_path, seeds, vary=(), task=tasks.DEFAULT_TASK, num_envs=16, **agent):
+    """A population of ``task`` (a camera task's on ``TRAINING_FRAMES``)."""
     cfg = train_config(task)
     cfg.env.num_envs, cfg.env.device, cfg.agent.logger = num_envs, DEVICE, "none"
+    if cfg.env.camera.enabled:
+        cfg.env.camera = dataclasses.replace(cfg.env.camera, **TRAINING_FRAMES)
     cfg.agent = dataclasses.replace(cfg.agent, **agent)
     return Training(cfg, tmp_path, members=members_of(list(seeds), list(vary)))
 
@@ -246,6 +247,8 @@ def test_torchrun_spreads_the_members_over_its_processes_and_each_share_trains_a
     (["--seeds", "1", "--population.vary", "agent.actor.hidden-dims=64"], "agent.actor.hidden-dims: members share"),
     (["--seeds", "1", "--population.vary", "agent.algorithm.gamma=high"], "the values must be numbers"),
     (["--seeds", *map(str, range(100)), "--num-envs", "1000000"], "members of 1,000,000 envs (fewer --seeds or"),
+    (["--task", "cart-double-pole-balance-rgb", "--seeds", "0", "1", "2", "3", "4", "--num-envs", "100000"],
+     "a population of 5 members x 100,000 envs of cart-double-pole-balance-rgb needs about"),
     (["--seeds", "1", "--learner", "shac"], "cannot train with --learner shac"),
     (["--population.until", "first-solved"], "--population.until first-solved ends a population: give --seeds"),
 ])
@@ -256,13 +259,15 @@ def test_bad_population_inputs_are_one_clear_line(tmp_path, flags, message):
     assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("task", STATE_TASKS)
-def test_every_state_task_trains_a_population(tmp_path, task):
+@pytest.mark.parametrize("task", tasks.names())
+def test_every_task_trains_a_population(tmp_path, task):
     training = population(tmp_path, [0, 1], task=task, num_envs=8, max_iterations=2)
     result = training.run()
     assert [row["iterations"] for row in result["members"]] == [2, 2]
     assert all(row["status"] == "completed" for row in result["members"])
-    assert torch.isfinite(training.loop.learner.ppo.model.params).all()
+    ppo = training.loop.learner.ppo
+    assert torch.isfinite(ppo.model.params).all()
+    assert (ppo.images is not None) == sees_images(task), "an actor that sees frames keeps them in the rollout"
 
 
 def test_a_task_that_evaluates_inside_the_step_on_a_gpu_trains_a_population_judged_on_envs_of_its_own(tmp_path):

@@ -103,7 +103,7 @@ def second_iteration(dual_clip=None, coef=0.7) -> tuple[LeaderFollowerPPO, Popul
     torch.manual_seed(5)
     rollout(ppo, [], data)
     ppo.update(permutations(3, 8))
-    last_obs = rollout(ppo, [], data)
+    last_obs, _ = rollout(ppo, [], data)
     plain = leader_and_followers([0, 1, 2], ppo_class=PopulationPPO)
     copy_state(ppo, plain)
     return ppo, plain, last_obs
@@ -156,10 +156,10 @@ def test_every_epoch_takes_each_of_the_followers_samples_once_in_mini_batches(mo
     batches = []
     losses = PopulationPPO._losses
 
-    def recording(self, batch, members=None, dual_clip=None):
+    def recording(self, batch, members=None, dual_clip=None, images=None):
         if members is not None:
             batches.append(batch[0].clone())
-        return losses(self, batch, members, dual_clip)
+        return losses(self, batch, members, dual_clip, images)
 
     monkeypatch.setattr(PopulationPPO, "_losses", recording)
     reported = ppo.update(permutations(3, 9))

@@ -18,7 +18,7 @@ import onnx
 import pytest
 import torch
 import yaml
-from conftest import call_main, requires_mp4, sees_images, writes_mp4
+from conftest import TRAINING_FRAMES, call_main, requires_mp4, sees_images, writes_mp4
 from onnx.reference import ReferenceEvaluator
 from PIL import Image
 
@@ -43,12 +43,12 @@ def only_run(log_dir, experiment=tasks.DEFAULT_TASK):
 
 @pytest.fixture(scope="module", params=tasks.names())
 def trained(request, tmp_path_factory):
-    """A 2-iteration run of train.py with 64 envs, for every task, a camera task's on frames of 36 x 36 (the smallest
-    its CNN takes); its ``main`` in this process, as the trainings to solved (test_promises.py runs the script in a
-    fresh one)."""
+    """A 2-iteration run of train.py with 64 envs, for every task, a camera task's on ``TRAINING_FRAMES``; its
+    ``main`` in this process, as the trainings to solved (test_promises.py runs the script in a fresh one)."""
     log_dir = tmp_path_factory.mktemp("logs")
     task = request.param
-    frames = ["--env.camera.width-px", "36", "--env.camera.height-px", "36"] if sees_images(task) else []
+    frames = (["--env.camera.width-px", str(TRAINING_FRAMES["width_px"]), "--env.camera.height-px",
+               str(TRAINING_FRAMES["height_px"])] if sees_images(task) else [])
     result = call_main("train", "--task", task, *SMALL, *frames, "--max-iterations", "2", "--run-name", "ci",
                        "--log-dir", log_dir)
     assert result.returncode == 0, result.stdout + result.stderr

@@ -49,10 +49,10 @@ class Member:
 
 
 def batched_ppo_problems(cfg: TrainConfig) -> dict[str, bool]:
-    """What keeps ``cfg`` from training on ``PopulationPPO`` (whose networks are rsl-rl's MLPs on the task's state,
-    updated in float32 by rsl-rl's PPO), in words, each with whether ``cfg`` has it."""
+    """What keeps ``cfg`` from training on ``PopulationPPO`` (whose networks are rsl-rl's MLPs, the actor's after an
+    image encoder where it sees camera frames, updated in float32 by rsl-rl's PPO), in words, each with whether
+    ``cfg`` has it."""
     return {
-        "a task that observes camera frames (the batched networks are MLPs)": cfg.env.camera.enabled,
         "agent.algorithm.use_mixed_precision": cfg.agent.algorithm.use_mixed_precision,
         "agent.torch_compile_mode": cfg.agent.torch_compile_mode is not None,
         "console rsl_rl (the batched rollout keeps no per-step log)": cfg.console == "rsl_rl",
@@ -115,15 +115,23 @@ class BatchedPpoLearner:
         self.clock.mark(2)
         return obs, losses
 
+    def _observations(self, obs: TensorDict) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The members' state observations (K, N, O) and, where the actors see camera frames, those (K, N, C, H, W)
+        (``RslRlVecEnv``'s groups: 'policy', with 'critic' the state where the policy sees frames)."""
+        members, n = self.num_members, self.num_envs
+        if not self.env.images:
+            return obs["policy"].view(members, n, -1), None
+        return obs["critic"].view(members, n, -1), obs["policy"].view(members, n, *obs["policy"].shape[1:])
+
     def _rollout(self, obs: TensorDict) -> TensorDict:
         members, n = self.num_members, self.num_envs
         for _ in range(self.num_steps_per_env):
-            actions = self.ppo.act(obs["policy"].view(members, n, -1))
+            actions = self.ppo.act(*self._observations(obs))
             obs, rewards, dones, extras = self.env.step(actions.view(members * n, -1))
             time_outs = extras["time_outs"]
             self.ppo.process_env_step(rewards.view(members, n), dones.view(members, n), time_outs.view(members, n))
             self.episodes.add(dones.bool(), extras["episode_return"], extras["episode_length"], time_outs)
-        self.ppo.compute_returns(obs["policy"].view(members, n, -1))
+        self.ppo.compute_returns(self._observations(obs)[0])
         return obs
 
     def read(self, losses: dict[str, torch.Tensor]) -> Readout:
@@ -153,8 +161,8 @@ class BatchedPpoLearner:
     def evaluation_policy(self) -> Callable[[torch.Tensor], torch.Tensor]:
         """The members' means, all in one batched forward."""
         def policy(obs: torch.Tensor) -> torch.Tensor:
-            return self.ppo.model.action_mean(obs.view(self.num_members, obs.shape[0] // self.num_members,
-                                                       -1)).flatten(0, 1)
+            members = self.num_members
+            return self.ppo.model.action_mean(obs.view(members, obs.shape[0] // members, *obs.shape[1:])).flatten(0, 1)
 
         return policy
 

@@ -28,8 +28,10 @@ from rsl_rl.modules.distribution import GaussianDistribution, HeteroscedasticGau
 from torch import nn
 
 from ....settings.deprecation import renamed
+from ...image_model import ImageModel
 from ...policies import gaussian_sample
 from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
+from .encoder import encoder_layers, grouped_encode
 
 Mirror = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """Symmetry augmentation of flat batches: (obs (B, O), actions (B, A)) -> (obs (C*B, O), actions (C*B, A)), the
@@ -95,27 +97,46 @@ class BatchedNormalizer(nn.Module):
         self.std.copy_(torch.where(active[:, None, None], self.var.sqrt(), self.std))
 
 
-class BatchedActorCritic(nn.Module):
-    """K rsl-rl ``MLPModel`` actors (Gaussian, state-independent std) and critics as one module.
+def check_templates(actor: MLPModel, critic: MLPModel):
+    """ValueError unless ``actor`` is an rsl-rl ``MLPModel`` or an ``ImageModel`` with a state-independent Gaussian and
+    ``critic`` an ``MLPModel`` with no distribution (what ``BatchedActorCritic`` batches)."""
+    for model, role in ((actor, "actor"), (critic, "critic")):
+        if type(model) is not MLPModel and not (role == "actor" and isinstance(model, ImageModel)):
+            raise ValueError(f"the {role} must be an rsl-rl MLPModel{' or an ImageModel' * (role == 'actor')}, "
+                             f"not {type(model).__name__}")
+    distribution = actor.distribution
+    if not isinstance(distribution, GaussianDistribution) or isinstance(
+            distribution, HeteroscedasticGaussianDistribution) or critic.distribution is not None:
+        raise ValueError("the actor needs a GaussianDistribution (state-independent std), the critic none")
 
-    All parameters live in ``params`` (K, P): per member, the actor's layers (weight as (in, out), bias), its std
-    parameter, then the critic's layers; the first ``num_actor_params`` columns are the actor's. Built from rsl-rl
-    models (``from_members``) and read back in rsl-rl's ``state_dict`` format (``member_state_dicts``).
+
+class BatchedActorCritic(nn.Module):
+    """K rsl-rl ``MLPModel`` actors (Gaussian, state-independent std) and critics as one module; the actors may be
+    ``ImageModel``s that see camera frames alone (their encoders run as grouped convolutions: ``encoder``), the critics
+    then seeing the task's state.
+
+    All parameters live in ``params`` (K, P): per member, the actor's encoder (kernels as (out, in, kh, kw), biases),
+    its layers (weight as (in, out), bias), its std parameter, then the critic's layers; the first
+    ``num_actor_params`` columns are the actor's. Built from rsl-rl models (``from_members``) and read back in
+    rsl-rl's ``state_dict`` format (``member_state_dicts``).
     """
 
     def __init__(self, actor: MLPModel, critic: MLPModel, num_members: int):
         """Zero-initialised networks of ``num_members`` members laid out as the template ``actor`` and ``critic``."""
         super().__init__()
-        for model, role in ((actor, "actor"), (critic, "critic")):
-            if type(model) is not MLPModel:
-                raise ValueError(f"the {role} must be an rsl-rl MLPModel, not {type(model).__name__}")
+        check_templates(actor, critic)
         distribution = actor.distribution
-        if not isinstance(distribution, GaussianDistribution) or isinstance(
-                distribution, HeteroscedasticGaussianDistribution) or critic.distribution is not None:
-            raise ValueError("the actor needs a GaussianDistribution (state-independent std), the critic none")
-        self.num_members, self.num_obs, self.num_actions = num_members, actor.obs_dim, distribution.output_dim
+        self.num_members, self.num_obs, self.num_actions = num_members, critic.obs_dim, distribution.output_dim
+        """``num_obs``: the width of the state observations, the critic's (and the actor's, unless it sees images)."""
         self.activation = actor.mlp[1]
         """The hidden layers' activation (rsl-rl's MLP shares one module between its layers)."""
+        self.image_shape: tuple[int, int, int] | None = None
+        """(C, H, W) of the images an image actor sees (None: the actor sees the state)."""
+        self._convs = []
+        if isinstance(actor, ImageModel):
+            group, self._convs, self.encoder_activation = encoder_layers(actor)
+            self.image_shape, self.image_dtype = actor.image_shapes[group], actor.image_dtypes[0]
+            self.block, self.low_precision = actor.blocks[group], actor.low_precision
         self.std_type, self.std_range, self.log_std_range = (distribution.std_type, distribution.std_range,
                                                              distribution.log_std_range)
         std_name = "std_param" if self.std_type == "scalar" else "log_std_param"
@@ -129,7 +150,8 @@ class BatchedActorCritic(nn.Module):
                                for name, module in model.named_modules() if isinstance(module, nn.Linear)]
                         for role, model in (("actor", actor), ("critic", critic))}
         """Per network: (module name, in, out) of each linear layer."""
-        self._sizes = [size for _, n_in, n_out in self._layers["actor"] for size in (n_in * n_out, n_out)]
+        self._sizes = [size for conv in self._convs for size in (math.prod(conv.weight_shape), conv.out_channels)]
+        self._sizes += [size for _, n_in, n_out in self._layers["actor"] for size in (n_in * n_out, n_out)]
         self._sizes.append(distribution.output_dim)
         self.num_actor_params = sum(self._sizes)
         self._sizes += [size for _, n_in, n_out in self._layers["critic"] for size in (n_in * n_out, n_out)]
@@ -138,6 +160,7 @@ class BatchedActorCritic(nn.Module):
         self.actor_normalizer, self.critic_normalizer = (
             BatchedNormalizer(num_members, model.obs_dim, model.obs_normalizer.eps) if model.obs_normalization
             else None for model in (actor, critic))
+        """An image actor's is of its 0 state observations (as ``ImageModel``'s): in its state dicts, never updated."""
 
     @classmethod
     def from_members(cls, actors: Sequence[MLPModel], critics: Sequence[MLPModel]) -> BatchedActorCritic:
@@ -160,6 +183,9 @@ class BatchedActorCritic(nn.Module):
         views = {}
         for role in ("actor", "critic"):
             views[role] = {}
+            for conv in self._convs if role == "actor" else ():
+                views[role][f"{conv.name}.weight"] = next(chunks).view(conv.weight_shape)
+                views[role][f"{conv.name}.bias"] = next(chunks)
             for name, n_in, n_out in self._layers[role]:
                 views[role][f"{name}.weight"] = next(chunks).view(n_in, n_out).T
                 views[role][f"{name}.bias"] = next(chunks)
@@ -188,16 +214,17 @@ class BatchedActorCritic(nn.Module):
             for key, view in views[role].items():
                 view.copy_(state[key])
 
-    def _networks(self, members: torch.Tensor | None = None) -> tuple[list, torch.Tensor, list]:
-        """(actor layers [(weight (K, in, out), bias (K, 1, out))], std parameter (K, 1, A), critic layers), of every
-        member or of ``members`` (indices)."""
+    def _networks(self, members: torch.Tensor | None = None) -> tuple[list, list, torch.Tensor, list]:
+        """(encoder [(kernels (K, O C kh kw), biases (K, O))], actor layers [(weight (K, in, out), bias (K, 1, out))],
+        std parameter (K, 1, A), critic layers), of every member or of ``members`` (indices)."""
         chunks = iter((self.params if members is None else self.params[members]).split(self._sizes, dim=1))
+        encoder = [(next(chunks), next(chunks)) for _ in self._convs]
         actor = [(next(chunks).view(-1, n_in, n_out), next(chunks).view(-1, 1, n_out))
                  for _, n_in, n_out in self._layers["actor"]]
         std_param = next(chunks).unsqueeze(1)
         critic = [(next(chunks).view(-1, n_in, n_out), next(chunks).view(-1, 1, n_out))
                   for _, n_in, n_out in self._layers["critic"]]
-        return actor, (std_param if self.learn_std else std_param.detach()), critic
+        return encoder, actor, (std_param if self.learn_std else std_param.detach()), critic
 
     def _mlp(self, x: torch.Tensor, layers: list) -> torch.Tensor:
         for i, (weight, bias) in enumerate(layers):
@@ -212,33 +239,47 @@ class BatchedActorCritic(nn.Module):
             return std_param.clamp(*self.std_range)
         return std_param.clamp(*self.log_std_range).exp()
 
-    def forward(self, obs: torch.Tensor, members: torch.Tensor | None = None
+    def _actor(self, obs: torch.Tensor, encoder: list, layers: list, members: torch.Tensor | None) -> torch.Tensor:
+        """The actors' means (K, B, A) of what they see: (K, B, O) states, normalised, or (K, B, C, H, W) images,
+        encoded."""
+        if self.image_shape is not None:
+            return self._mlp(grouped_encode(obs, encoder, self._convs, self.encoder_activation, self.block,
+                                            self.low_precision), layers)
+        return self._mlp(obs if self.actor_normalizer is None else self.actor_normalizer(obs, members), layers)
+
+    def forward(self, obs: torch.Tensor, members: torch.Tensor | None = None, images: torch.Tensor | None = None
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(K, B, O) observations -> action means (K, B, A), std (K, 1, A), values (K, B); of every member, or of the
-        K ``members`` (indices)."""
-        actor, std_param, critic = self._networks(members)
-        actor_obs = obs if self.actor_normalizer is None else self.actor_normalizer(obs, members)
+        """(K, B, O) state observations (and the (K, B, C, H, W) ``images`` an image actor sees instead) -> action
+        means (K, B, A), std (K, 1, A), values (K, B); of every member, or of the K ``members`` (indices)."""
+        if (images is None) != (self.image_shape is None):
+            raise ValueError("images are what an image actor sees, and only it" if images is not None
+                             else "an image actor needs its images")
+        encoder, actor, std_param, critic = self._networks(members)
         critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs, members)
-        return self._mlp(actor_obs, actor), self._std(std_param), self._mlp(critic_obs, critic).squeeze(-1)
+        mean = self._actor(obs if images is None else images, encoder, actor, members)
+        return mean, self._std(std_param), self._mlp(critic_obs, critic).squeeze(-1)
 
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
-        """(K, B, O) observations -> the actors' means (K, B, A): the members' deterministic actions."""
-        actor_obs = obs if self.actor_normalizer is None else self.actor_normalizer(obs)
-        return self._mlp(actor_obs, self._networks()[0])
+        """What the actors see, (K, B, O) states or (K, B, C, H, W) images -> their means (K, B, A): the members'
+        deterministic actions."""
+        encoder, actor, _, _ = self._networks()
+        return self._actor(obs, encoder, actor, None)
 
     @torch.no_grad()
     def action_std(self) -> torch.Tensor:
         """(K, A) the members' action standard deviations."""
-        return self._std(self._networks()[1]).squeeze(1)
+        return self._std(self._networks()[2]).squeeze(1)
 
     def values(self, obs: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
-        """(K, B, O) observations -> the critics' values (K, B), of every member or of the K ``members``."""
+        """(K, B, O) state observations -> the critics' values (K, B), of every member or of the K ``members``."""
         critic_obs = obs if self.critic_normalizer is None else self.critic_normalizer(obs, members)
-        return self._mlp(critic_obs, self._networks(members)[2]).squeeze(-1)
+        return self._mlp(critic_obs, self._networks(members)[3]).squeeze(-1)
 
     def update_normalization(self, obs: torch.Tensor, active: torch.Tensor):
-        """rsl-rl's ``update_normalization`` of actor and critic with (K, B, O) observations, ``active`` members."""
-        for normalizer in (self.actor_normalizer, self.critic_normalizer):
+        """rsl-rl's ``update_normalization`` of actor and critic with (K, B, O) state observations, ``active``
+        members (an image actor's statistics stay as they are, as ``ImageModel``'s)."""
+        actor_normalizer = self.actor_normalizer if self.image_shape is None else None
+        for normalizer in (actor_normalizer, self.critic_normalizer):
             if normalizer is not None:
                 normalizer.update(obs, active)
 
@@ -259,13 +300,15 @@ def gaussian_kl(old_mean: torch.Tensor, old_std: torch.Tensor, new_mean: torch.T
 class PopulationPPO:
     """K rsl-rl PPO learners on one batched model; member k acts in its own N envs.
 
-    Per step: ``act(obs (K, N, O)) -> actions (K, N, A)``, then ``process_env_step(rewards, dones, time_outs)``
-    (each (K, N)); after T steps ``compute_returns(last_obs (K, N, O))`` and ``update() -> {"value", "surrogate",
+    Per step: ``act(obs (K, N, O)) -> actions (K, N, A)`` (with the ``images`` (K, N, C, H, W) where the actors see
+    images, ``obs`` then the critics' state observations), then ``process_env_step(rewards, dones, time_outs)`` (each
+    (K, N)); after T steps ``compute_returns(last_obs (K, N, O))`` and ``update() -> {"value", "surrogate",
     "entropy"}`` mean losses, each (K,). The scalar settings take a float (all members) or K values and keep rsl-rl's
     ``PPO`` names and defaults. Members whose ``active`` (K,) flag is False are left unchanged by ``update``
     (parameters, Adam state, learning rate, normalisers; their losses are still reported). The rollout is stored
     member-major, ``rollout`` (K, T, N, F) with named views (``observations`` (K, T, N, O), ``actions``, ``values``
-    (K, T, N), ...), so that each member's (T, N) flattens to rsl-rl's sample order without a copy.
+    (K, T, N), ...), so that each member's (T, N) flattens to rsl-rl's sample order without a copy; an image actor's
+    frames in ``images`` (K, T, N, C, H, W), of the env's dtype (uint8 colour: a quarter of float32's memory).
     """
 
     def __init__(self, model: BatchedActorCritic, num_envs: int, num_steps: int, *, num_learning_epochs: int = 5,
@@ -273,6 +316,8 @@ class PopulationPPO:
                  entropy_coef=0.01, learning_rate=1e-3, max_grad_norm=1.0, use_clipped_value_loss: bool = True,
                  schedule: str = "adaptive", desired_kl=0.01, normalize_advantage_per_mini_batch: bool = False,
                  mirror: Mirror | None = None):
+        if mirror is not None and model.image_shape is not None:
+            raise ValueError("the mirror augmentation mirrors state observations, not an image actor's frames")
         self.model = model
         device, members = model.params.device, model.num_members
         self.num_envs, self.num_steps = num_envs, num_steps
@@ -296,8 +341,12 @@ class PopulationPPO:
         self.exp_avg, self.exp_avg_sq = torch.zeros_like(model.params), torch.zeros_like(model.params)
         self.adam_steps = torch.zeros(members, dtype=torch.float64, device=device)
         """(K,) Adam steps taken per member (float64: bias corrections as torch computes them, in double)."""
+        self._allocate_rollout()
 
-        num_obs, num_actions = model.num_obs, model.num_actions
+    def _allocate_rollout(self):
+        """The rollout's storage (the class's docstring names it), zeroed."""
+        model, members, num_steps, num_envs = self.model, self.model.num_members, self.num_steps, self.num_envs
+        device, num_obs, num_actions = model.params.device, model.num_obs, model.num_actions
         self._fields = [num_obs, num_actions, 1, 1, 1, 1, num_actions, num_actions]
         """Feature widths of ``rollout``: observations, actions, values, returns, advantages, actions_log_prob,
         action_mean, action_std (one gather per mini-batch fetches them all)."""
@@ -309,16 +358,21 @@ class PopulationPPO:
         self.rewards = torch.zeros(members, num_steps, num_envs, device=device)
         """(K, T, N) rewards, time-outs bootstrapped (rsl-rl's ``process_env_step``)."""
         self.dones = torch.zeros(members, num_steps, num_envs, device=device)
+        self.images = None if model.image_shape is None else torch.zeros(
+            members, num_steps, num_envs, *model.image_shape, dtype=model.image_dtype, device=device)
+        self._member_rows = torch.arange(members, device=device)[:, None]
         self.step = 0
         """Steps stored in the current rollout."""
 
     @torch.no_grad()
-    def act(self, obs: torch.Tensor) -> torch.Tensor:
-        """Sample actions (K, N, A) for observations (K, N, O) (mean + std * N(0, 1), as ``SyncFreeGaussian``) and
-        store the transition."""
-        mean, std, values = self.model(obs)
+    def act(self, obs: torch.Tensor, images: torch.Tensor | None = None) -> torch.Tensor:
+        """Sample actions (K, N, A) for observations (K, N, O) (and ``images`` (K, N, C, H, W) of an image actor) (mean
+        + std * N(0, 1), as ``SyncFreeGaussian``) and store the transition."""
+        mean, std, values = self.model(obs, images=images)
         actions = gaussian_sample(mean, std)
         step = self.step
+        if images is not None:
+            self.images[:, step] = images
         self.observations[:, step] = obs
         self.actions[:, step] = actions
         self.values[:, step] = values
@@ -366,20 +420,24 @@ class PopulationPPO:
             permutation = torch.rand(members, mini_batch * self.num_mini_batches,
                                      device=self.rollout.device).argsort(dim=1)
         rollout = self.rollout.flatten(1, 2)
+        images = None if self.images is None else self.images.flatten(1, 2)
         sums = torch.zeros(3, members, device=rollout.device)
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
-                index = permutation[:, i * mini_batch:(i + 1) * mini_batch, None].expand(-1, -1, rollout.shape[-1])
-                sums += self._gradient_step(rollout.gather(1, index), i)
+                rows = permutation[:, i * mini_batch:(i + 1) * mini_batch]
+                index = rows[..., None].expand(-1, -1, rollout.shape[-1])
+                batch_images = None if images is None else images[self._member_rows, rows]
+                sums += self._gradient_step(rollout.gather(1, index), i, batch_images)
         self.model.update_normalization(self.observations.flatten(1, 2), self.active)
         self.step = 0
         value, surrogate, entropy = sums / (self.num_learning_epochs * self.num_mini_batches)
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
 
-    def _gradient_step(self, batch: torch.Tensor, mini_batch: int) -> torch.Tensor:
-        """Mini-batch ``mini_batch`` (K, B, F) of the epoch: every member's PPO loss, learning-rate rule, clip and Adam
-        step; returns the (3, K) value loss, surrogate loss and entropy."""
-        surrogate_loss, value_loss, entropy = self._losses(batch)
+    def _gradient_step(self, batch: torch.Tensor, mini_batch: int, images: torch.Tensor | None) -> torch.Tensor:
+        """Mini-batch ``mini_batch`` (K, B, F) of the epoch (with its ``images`` (K, B, C, H, W) of an image actor):
+        every member's PPO loss, learning-rate rule, clip and Adam step; returns the (3, K) value loss, surrogate loss
+        and entropy."""
+        surrogate_loss, value_loss, entropy = self._losses(batch, images=images)
         self._step(surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy, mini_batch)
         return torch.stack((value_loss.detach(), surrogate_loss.detach(), entropy.detach()))
 
@@ -389,12 +447,13 @@ class PopulationPPO:
         (grad,) = torch.autograd.grad(loss.sum(), self.model.params)
         self._clip_and_step(grad)
 
-    def _losses(self, batch: torch.Tensor, members: torch.Tensor | None = None, dual_clip: float | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """rsl-rl's PPO losses of a mini-batch (K, B, F) laid out as ``rollout``: the clipped surrogate loss, the
-        (clipped) value loss and the entropy, (K,) each, of every member (and its learning-rate rule on the batch's
-        KL) or of the K ``members`` (indices), each on its row of ``batch``. ``dual_clip`` c: a sample's surrogate
-        loss with a negative advantage A is at most -c A (dual-clip PPO: Ye et al., AAAI 2020)."""
+    def _losses(self, batch: torch.Tensor, members: torch.Tensor | None = None, dual_clip: float | None = None,
+                images: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """rsl-rl's PPO losses of a mini-batch (K, B, F) laid out as ``rollout`` (and its (K, B, C, H, W) ``images``
+        of an image actor): the clipped surrogate loss, the (clipped) value loss and the entropy, (K,) each, of every
+        member (and its learning-rate rule on the batch's KL) or of the K ``members`` (indices), each on its row of
+        ``batch``. ``dual_clip`` c: a sample's surrogate loss with a negative advantage A is at most -c A (dual-clip
+        PPO: Ye et al., AAAI 2020)."""
         obs, actions, old_values, returns, advantages, old_log_prob, old_mean, old_std = batch.split(self._fields, -1)
         old_values, returns, advantages, old_log_prob = (
             t.squeeze(-1) for t in (old_values, returns, advantages, old_log_prob))
@@ -409,7 +468,7 @@ class PopulationPPO:
             copies = obs.shape[1] // size
             old_values, returns, advantages, old_log_prob = (
                 t.repeat(1, copies) for t in (old_values, returns, advantages, old_log_prob))
-        mean, std, values = self.model(obs, members)
+        mean, std, values = self.model(obs, members, images)
         log_prob = gaussian_log_prob(actions, mean, std)
         entropy = (0.5 + 0.5 * math.log(2 * math.pi) + std.log()).sum(-1).squeeze(1)
         if self.adaptive and members is None:

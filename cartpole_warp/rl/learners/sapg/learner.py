@@ -113,7 +113,9 @@ class SapgLearner:
     @staticmethod
     def env_config(cfg: TrainConfig, env_cfg: EnvConfig, ranks: Ranks) -> EnvConfig:
         """``num_blocks`` times the envs; ConfigError where the run cannot train this way."""
-        problems = {"torchrun (its blocks learn in one process)": ranks.distributed, **batched_ppo_problems(cfg)}
+        problems = {"torchrun (its blocks learn in one process)": ranks.distributed,
+                    "a task that observes camera frames (its batches of the followers' samples keep no frames)":
+                        cfg.env.camera.enabled, **batched_ppo_problems(cfg)}
         refuse_present("--learner sapg cannot train", problems)
         return dataclasses.replace(env_cfg, num_envs=env_cfg.num_envs * cfg.agent.sapg.num_blocks)
 
