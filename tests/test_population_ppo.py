@@ -208,7 +208,7 @@ def test_three_members_each_equal_their_own_rsl_rl_ppo():
 
 
 def test_actors_that_see_frames_each_equal_their_own_rsl_rl_ppo():
-    """Two members whose actors see uint8 frames (an encoder over pixel blocks, as grouped convolutions) and whose
+    """Two members whose actors see uint8 frames (an encoder over pixel blocks) and whose
     critics see the state, each against rsl-rl's PPO with an ``ImageModel`` actor: rollout, returns, update, and the
     deterministic actions the evaluation plays."""
     settings = {name: values[:2] for name, values in THREE_MEMBERS.items()}

@@ -1,7 +1,7 @@
-"""K members' image encoders (rsl-rl ``CNN``s, as ``rl.image_model.ImageModel`` runs them) as one grouped
-convolution per layer: member k's images are channels [k C, (k+1) C) of one batch of images and its kernels the k-th
-group of the layer's, so a layer of every member is one kernel launch whatever K is (what ``torch.func.vmap`` makes of
-a convolution, without its per-call tracing)."""
+"""K members' image encoders (rsl-rl ``CNN``s, as ``rl.image_model.ImageModel`` runs them) on their own images,
+with kernels and biases that are views of the members' flat parameters: each layer runs as K convolutions of a solo
+run's shape (under a CUDA graph their launches cost nothing); one grouped convolution of all K was measured slower,
+forward and backward (docs/benchmarks.md)."""
 
 from __future__ import annotations
 
@@ -53,19 +53,18 @@ def encoder_layers(actor: ImageModel) -> tuple[str, list[ConvLayer], nn.Module]:
     return group, layers, activation
 
 
-def grouped_encode(images: torch.Tensor, weights: list[tuple[torch.Tensor, torch.Tensor]], layers: list[ConvLayer],
+def encode_members(images: torch.Tensor, weights: list[tuple[torch.Tensor, torch.Tensor]], layers: list[ConvLayer],
                    activation: nn.Module, block: int, low_precision: bool) -> torch.Tensor:
     """(K, B, C, H, W) images (uint8 scaled to [0, 1], or float) through each member's encoder, its layers' ``weights``
-    [(kernels (K, O, C, kh, kw) in any layout that views as (K O, C, kh, kw), biases (K, O))], the first over
-    ``block`` x ``block`` pixel blocks (``to_blocks``); on a GPU in bfloat16 where ``low_precision``, channels-last.
-    Returns the flattened float32 features (K, B, F)."""
-    members, batch = images.shape[:2]
+    [(kernels (K, O C kh kw), biases (K, O))], the first over ``block`` x ``block`` pixel blocks (``to_blocks``); on a
+    GPU in bfloat16 where ``low_precision``, channels-last. Returns the flattened float32 features (K, B, F)."""
     device = images.device.type
     low = low_precision and device in LOW_PRECISION_DEVICES
-    side_by_side = images.transpose(0, 1).reshape(batch, members * images.shape[2], *images.shape[3:])
-    x = to_blocks(side_by_side, block, torch.bfloat16 if low else torch.float32, device == "cuda")
-    with torch.autocast(device_type=device, dtype=torch.bfloat16, enabled=low):
-        for (weight, bias), layer in zip(weights, layers, strict=True):
-            kernels = weight.reshape(members * layer.out_channels, *layer.weight_shape[1:])
-            x = activation(functional.conv2d(x, kernels, bias.reshape(-1), stride=layer.stride, groups=members))
-    return x.float().reshape(batch, members, -1).transpose(0, 1)
+    features = []
+    for k, member_images in enumerate(images):
+        x = to_blocks(member_images, block, torch.bfloat16 if low else torch.float32, device == "cuda")
+        with torch.autocast(device_type=device, dtype=torch.bfloat16, enabled=low):
+            for (weight, bias), layer in zip(weights, layers, strict=True):
+                x = activation(functional.conv2d(x, weight[k].view(layer.weight_shape), bias[k], stride=layer.stride))
+        features.append(x.float().flatten(1))
+    return torch.stack(features)

@@ -31,7 +31,7 @@ from ....settings.deprecation import renamed
 from ...image_model import ImageModel
 from ...policies import gaussian_sample
 from ..ppo_rules import adaptive_kl_rate, clipped_surrogate, value_error
-from .encoder import encoder_layers, grouped_encode
+from .encoder import encode_members, encoder_layers
 
 Mirror = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """Symmetry augmentation of flat batches: (obs (B, O), actions (B, A)) -> (obs (C*B, O), actions (C*B, A)), the
@@ -112,8 +112,7 @@ def check_templates(actor: MLPModel, critic: MLPModel):
 
 class BatchedActorCritic(nn.Module):
     """K rsl-rl ``MLPModel`` actors (Gaussian, state-independent std) and critics as one module; the actors may be
-    ``ImageModel``s that see camera frames alone (their encoders run as grouped convolutions: ``encoder``), the critics
-    then seeing the task's state.
+    ``ImageModel``s that see camera frames alone (``encoder.encode_members``), the critics then seeing the task's state.
 
     All parameters live in ``params`` (K, P): per member, the actor's encoder (kernels as (out, in, kh, kw), biases),
     its layers (weight as (in, out), bias), its std parameter, then the critic's layers; the first
@@ -243,7 +242,7 @@ class BatchedActorCritic(nn.Module):
         """The actors' means (K, B, A) of what they see: (K, B, O) states, normalised, or (K, B, C, H, W) images,
         encoded."""
         if self.image_shape is not None:
-            return self._mlp(grouped_encode(obs, encoder, self._convs, self.encoder_activation, self.block,
+            return self._mlp(encode_members(obs, encoder, self._convs, self.encoder_activation, self.block,
                                             self.low_precision), layers)
         return self._mlp(obs if self.actor_normalizer is None else self.actor_normalizer(obs, members), layers)
 
