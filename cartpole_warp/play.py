@@ -134,7 +134,7 @@ class PlayArgs(Generic[TaskT]):
     """--headless: also write <output>/cartpole.viser, a replay for viser's static player (the viser extra; Newton's
     viser viewer records only while it serves, so a server runs on a free local port meanwhile)."""
     export: bool = False
-    """Write <run>/exported/policy.onnx and policy.pt."""
+    """Write <run>/exported/policy.onnx, policy.pt2 and policy.pt."""
     steps: int | None = None
     """Env steps to run (default: the time limit, or 1000 without one; in the viewer: until its window closes); fewer
     than a whole episode's are not judged 'solved' or not."""

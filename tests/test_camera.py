@@ -207,6 +207,8 @@ def test_a_policy_from_pixels_trains_and_its_exports_act_like_the_checkpoint_on_
     np.testing.assert_allclose(actions, expected, rtol=1e-5, atol=1e-5)
     scripted = torch.jit.load(str(run / "exported" / "policy.pt"))(frames).detach().numpy()
     np.testing.assert_allclose(scripted, expected, rtol=1e-5, atol=1e-5)
+    program = torch.export.load(run / "exported" / "policy.pt2").module()(frames).detach().numpy()
+    np.testing.assert_allclose(program, expected, rtol=1e-5, atol=1e-5)
     played = call_main("play", "--headless", "--run", run, "--num-envs", 2, "--steps", 6)
     assert played.returncode == 0, played.stdout + played.stderr
     from PIL import Image

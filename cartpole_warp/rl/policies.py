@@ -1,6 +1,7 @@
 """Policies outside the training loop: rsl-rl's ``train_cfg`` dict of the agent's settings (``to_rsl_rl``), checkpoints
 read with clear errors, the actor of a checkpoint and its deterministic policy (``load_actor``, ``load_policy``: no
-``OnPolicyRunner``, no optimizer), and the exports of an actor (``export_policy``: ONNX and TorchScript)."""
+``OnPolicyRunner``, no optimizer), and the exports of an actor (``export_policy``: ONNX, a ``torch.export`` program and
+TorchScript)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import contextlib
 import dataclasses
 import io
 import logging
+import re
 import warnings
 from pathlib import Path
 
@@ -28,8 +30,20 @@ from ..wrappers.rsl_rl import mirror as mirror_batch
 from .image_model import ImageModel
 from .runs import RunError
 
-ONNX_FILE, JIT_FILE = "policy.onnx", "policy.pt"
-"""The exports' file names (in a run's ``exported/``)."""
+ONNX_FILE, PROGRAM_FILE, JIT_FILE = "policy.onnx", "policy.pt2", "policy.pt"
+"""The exports' file names (in a run's ``exported/``): ONNX, the ``torch.export`` program, TorchScript."""
+
+EXPORT_WARNINGS = (
+    (DeprecationWarning, "`torch.jit.script` is deprecated",
+     "policy.pt is TorchScript on purpose: rsl-rl's and Isaac Lab's users load it (policy.pt2 is its successor)"),
+    (DeprecationWarning, "`torch.jit.save` is deprecated", "the same file's writing"),
+    (FutureWarning, "`isinstance(treespec, LeafSpec)` is deprecated", "torch.export's own pytree code raises it"),
+)
+"""The warnings that an export silences, each by its category and the start of its message, and why; any other
+warning reaches the user."""
+ONNX_REGISTRATION_LOGGER = "torch.onnx._internal.exporter._registration"
+"""The logger of the ONNX exporter's operator table, which warns once per torchvision operator it skips where
+torchvision is not installed (a policy uses none): set to ERROR while exporting."""
 
 RSL_RL_KEYS = ("num_steps_per_env", "save_interval", "run_name", "logger", "torch_compile_mode", "algorithm", "actor",
                "critic")
@@ -185,31 +199,35 @@ def to_rsl_rl(agent: RunnerConfig, mirror: bool = False, images: bool = False) -
 
 
 def export_policy(actor: torch.nn.Module, out_dir: Path) -> list[Path]:
-    """Write ``actor``'s deterministic policy as ``policy.onnx`` (one self-contained file; input 'obs' as the env
-    gives it: (N, num_obs) float32, or camera frames (N, C, H, W); output 'actions' (N, num_actions), any batch size
-    N) and TorchScript ``policy.pt`` into ``out_dir``. rsl-rl's ``export_policy_to_onnx`` fixes the batch to 1, so the
-    ONNX export is torch's with a dynamic batch dimension, by its TorchScript-based exporter (``dynamo=False``: the
-    dynamo exporter is far slower for the same graph of a small network; docs/benchmarks.md). Its progress report
-    and warnings are shown only if it fails."""
+    """Write ``actor``'s deterministic policy into ``out_dir`` for any batch size N (input 'obs' as the env gives it:
+    (N, num_obs) float32, or camera frames (N, C, H, W); output 'actions' (N, num_actions)): ``policy.onnx`` (one
+    self-contained file, by torch's ``torch.export``-based exporter, its batch dimension named 'batch'), the
+    ``torch.export`` program it was made from, ``policy.pt2`` (``torch.export.load(path).module()``; AOTInductor
+    compiles it for C++), and TorchScript ``policy.pt`` (``torch.jit.load``, as rsl-rl's exports). rsl-rl's
+    ``export_policy_to_onnx`` fixes the batch to 1, hence torch's exporter here. Only ``EXPORT_WARNINGS`` are
+    silenced."""
     out_dir = Path(out_dir)
-    report = io.StringIO()
-    onnx_logger = logging.getLogger("torch.onnx")
-    level = onnx_logger.level
-    onnx_logger.setLevel(logging.ERROR)
+    policy = actor.as_onnx(verbose=False).to("cpu").eval()
+    inputs = tuple(torch.cat([dummy, dummy]) for dummy in policy.get_dummy_inputs())  # a batch of 1 would be fixed
+    registration = logging.getLogger(ONNX_REGISTRATION_LOGGER)
+    level = registration.level
+    registration.setLevel(logging.ERROR)
     try:
-        with contextlib.redirect_stdout(report), contextlib.redirect_stderr(report), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            policy = actor.as_onnx(verbose=False).to("cpu").eval()
-            batch = {name: {0: "batch"} for name in (*policy.input_names, *policy.output_names)}
-            atomic_write(out_dir / ONNX_FILE, lambda tmp: torch.onnx.export(
-                policy, policy.get_dummy_inputs(), tmp, opset_version=18, input_names=policy.input_names,
-                output_names=policy.output_names, dynamic_axes=batch, dynamo=False))
+        with warnings.catch_warnings():
+            for category, message, _ in EXPORT_WARNINGS:
+                warnings.filterwarnings("ignore", re.escape(message), category)
+            batch = torch.export.Dim("batch")
+            program = torch.onnx.export(policy, inputs, input_names=policy.input_names,
+                                        output_names=policy.output_names, opset_version=18, dynamo=True,
+                                        verbose=False, dynamic_shapes=tuple({0: batch} for _ in inputs))
+            atomic_write(out_dir / ONNX_FILE, program.save)
+            atomic_write(out_dir / PROGRAM_FILE, lambda tmp: torch.export.save(program.exported_program, tmp))
             atomic_write(out_dir / JIT_FILE, lambda tmp: torch.jit.script(actor.as_jit().to("cpu")).save(tmp))
     except Exception as err:
-        raise RuntimeError(f"policy export failed: {err}\n{report.getvalue()}") from err
+        raise RuntimeError(f"policy export failed: {err}") from err
     finally:
-        onnx_logger.setLevel(level)
-    return [out_dir / ONNX_FILE, out_dir / JIT_FILE]
+        registration.setLevel(level)
+    return [out_dir / ONNX_FILE, out_dir / PROGRAM_FILE, out_dir / JIT_FILE]
 
 
 def _path(obj) -> str:

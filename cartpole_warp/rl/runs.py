@@ -2,8 +2,8 @@
 
 A run lives in ``<log_dir>/rsl_rl/<experiment>/<timestamp>[_<run_name>]/`` and holds ``config.yaml`` (the resolved
 ``TrainConfig``; play.py rebuilds the env from it), ``model_<iteration>.pt`` checkpoints, ``summary.json``
-(``RunSummary``), ``learning_curve.png``, ``exported/policy.onnx`` + ``exported/policy.pt`` and the logger's event
-files; ``play/`` gets play.py's pictures and result.
+(``RunSummary``), ``learning_curve.png``, the exports (``exported/policy.onnx``, ``policy.pt2``, ``policy.pt``) and the
+logger's event files; ``play/`` gets play.py's pictures and result.
 """
 
 from __future__ import annotations
