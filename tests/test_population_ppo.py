@@ -279,3 +279,12 @@ def test_an_inactive_member_is_left_unchanged():
             assert torch.equal(ours, theirs), k
     assert not torch.equal(member(population, 0)[0], before[0][0])
     assert torch.isfinite(population.model.params).all()
+
+
+def test_the_batched_model_refuses_networks_it_does_not_batch():
+    actor, critic = mlp_models(obs_normalization=False)
+    image_actor, _ = image_models()
+    with pytest.raises(ValueError, match="the critic must be an rsl-rl MLPModel, not ImageModel"):
+        BatchedActorCritic(actor, image_actor, 1)
+    with pytest.raises(ValueError, match="the actor must be an rsl-rl MLPModel or an ImageModel, not Linear"):
+        BatchedActorCritic(torch.nn.Linear(1, 1), critic, 1)

@@ -100,10 +100,10 @@ class BatchedNormalizer(nn.Module):
 def check_templates(actor: MLPModel, critic: MLPModel):
     """ValueError unless ``actor`` is an rsl-rl ``MLPModel`` or an ``ImageModel`` with a state-independent Gaussian and
     ``critic`` an ``MLPModel`` with no distribution (what ``BatchedActorCritic`` batches)."""
-    for model, role in ((actor, "actor"), (critic, "critic")):
-        if type(model) is not MLPModel and not (role == "actor" and isinstance(model, ImageModel)):
-            raise ValueError(f"the {role} must be an rsl-rl MLPModel{' or an ImageModel' * (role == 'actor')}, "
-                             f"not {type(model).__name__}")
+    if type(actor) not in (MLPModel, ImageModel):
+        raise ValueError(f"the actor must be an rsl-rl MLPModel or an ImageModel, not {type(actor).__name__}")
+    if type(critic) is not MLPModel:
+        raise ValueError(f"the critic must be an rsl-rl MLPModel, not {type(critic).__name__}")
     distribution = actor.distribution
     if not isinstance(distribution, GaussianDistribution) or isinstance(
             distribution, HeteroscedasticGaussianDistribution) or critic.distribution is not None:
