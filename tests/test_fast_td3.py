@@ -221,3 +221,27 @@ def test_what_fasttd3_cannot_train_is_one_line(tmp_path, flags, message):
                        "--logger", "none", "--log-dir", tmp_path)
     assert result.returncode != 0 and message in result.stderr, result.stdout + result.stderr
     assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_graphed_fasttd3_iterations_equal_launched_ones(device, tmp_path):
+    """On a GPU (``CARTPOLE_TEST_DEVICE=cuda:0``) the rollout and the updates are captured as CUDA graphs, the
+    optimizers stepping inside them (capturable AdamW): four iterations give the networks that the same iterations
+    launched op by op give."""
+    if not device.startswith("cuda"):
+        pytest.skip("CUDA graphs need a GPU: CARTPOLE_TEST_DEVICE=cuda:0")
+    learners = []
+    for graphed in (True, False):
+        cfg = train_config(learner="fasttd3")
+        cfg.env.num_envs, cfg.env.device, cfg.agent.logger, cfg.agent.max_iterations = 256, device, "none", 4
+        cfg.agent.cuda_graph, cfg.stop_when_solved = graphed, False
+        training = Training(cfg, tmp_path / str(graphed))
+        torch.manual_seed(1)
+        torch.cuda.manual_seed(1)
+        training.run()
+        learners.append(training.loop.learner)
+    graphed, launched = learners
+    assert graphed._graphs is not None and graphed.capturable
+    assert launched._graphs is None and not launched.capturable
+    for ours, theirs in ((graphed.actor, launched.actor), (graphed.critic, launched.critic)):
+        for p, q in zip(ours.parameters(), theirs.parameters(), strict=True):
+            torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5)
