@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import signal
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -94,7 +95,8 @@ class Interrupts:
     """SIGINT and SIGTERM (which torchrun sends its processes) while a training runs, as a context: the first calls
     ``stop`` (training ends after the iteration in progress, which is saved) and ``say``s so; a second
     aborts (KeyboardInterrupt, nothing saved); once ``finishing`` (training has ended, the run's files are being
-    written) a signal waits for them, saying so."""
+    written) a signal waits for them, saying so. Only the main thread receives signals: a training in another thread
+    (a Ray Tune trial's, ``tools.tune``) is stopped by its caller (``TrainingLoop.request_stop``)."""
 
     def __init__(self, stop: Callable[[], None], say: Callable[[str], None], stopping: str):
         self.stop, self.say, self.stopping = stop, say, stopping
@@ -102,7 +104,8 @@ class Interrupts:
         self._previous: dict = {}
 
     def __enter__(self) -> Interrupts:
-        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        if threading.current_thread() is threading.main_thread():  # Python's rule; elsewhere the caller stops it
+            self._previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         return self
 
     def __exit__(self, *exc):
