@@ -33,13 +33,15 @@ from .runs import RunError
 ONNX_FILE, PROGRAM_FILE, JIT_FILE = "policy.onnx", "policy.pt2", "policy.pt"
 """The exports' file names (in a run's ``exported/``): ONNX, the ``torch.export`` program, TorchScript."""
 
+TORCH_DEPRECATION = (DeprecationWarning, FutureWarning)
+"""The categories of torch's TorchScript deprecations: DeprecationWarning up to 2.14, FutureWarning in 2.15."""
 EXPORT_WARNINGS = (
-    (DeprecationWarning, "`torch.jit.script` is deprecated",
+    (TORCH_DEPRECATION, "`torch.jit.script` is deprecated",
      "policy.pt is TorchScript on purpose: rsl-rl's and Isaac Lab's users load it (policy.pt2 is its successor)"),
-    (DeprecationWarning, "`torch.jit.save` is deprecated", "the same file's writing"),
-    (FutureWarning, "`isinstance(treespec, LeafSpec)` is deprecated", "torch.export's own pytree code raises it"),
+    (TORCH_DEPRECATION, "`torch.jit.save` is deprecated", "the same file's writing"),
+    ((FutureWarning,), "`isinstance(treespec, LeafSpec)` is deprecated", "torch.export's own pytree code raises it"),
 )
-"""The warnings that an export silences, each by its category and the start of its message, and why; any other
+"""The warnings that an export silences, each by its categories and the start of its message, and why; any other
 warning reaches the user."""
 ONNX_REGISTRATION_LOGGER = "torch.onnx._internal.exporter._registration"
 """The logger of the ONNX exporter's operator table, which warns once per torchvision operator it skips where
@@ -214,8 +216,9 @@ def export_policy(actor: torch.nn.Module, out_dir: Path) -> list[Path]:
     registration.setLevel(logging.ERROR)
     try:
         with warnings.catch_warnings():
-            for category, message, _ in EXPORT_WARNINGS:
-                warnings.filterwarnings("ignore", re.escape(message), category)
+            for categories, message, _ in EXPORT_WARNINGS:
+                for category in categories:
+                    warnings.filterwarnings("ignore", re.escape(message), category)
             batch = torch.export.Dim("batch")
             program = torch.onnx.export(policy, inputs, input_names=policy.input_names,
                                         output_names=policy.output_names, opset_version=18, dynamo=True,

@@ -190,29 +190,29 @@ def run_search(args: TuneArgs, base: list[str], dimensions: list[Dimension], met
     import optuna
     import ray
     from ray import tune
-    from ray.tune.schedulers import ASHAScheduler
     from ray.tune.search.optuna import OptunaSearch
 
-    from .tune_trial import PopulationTrial, SearchLines
+    from .tune_trial import GracefulASHA, PopulationTrial, SearchLines, StopBoard
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-    plan = {"flags": base, "seeds": [args.seed + k for k in range(args.members)], "metric": metric,
-            "folder": str(folder)}
     resources = {"cpu": args.cpus_per_trial, "gpu": args.gpus_per_trial if args.device == "cuda" else 0}
     grace = args.grace_iterations or max(1, max_iterations // 10)
     ray.init(address=args.address, include_dashboard=False, logging_level="warning", log_to_driver=False)
     try:
+        board = StopBoard.remote()
+        plan = {"flags": base, "seeds": [args.seed + k for k in range(args.members)], "metric": metric,
+                "folder": str(folder), "board": board}
         tuner = tune.Tuner(
             tune.with_resources(tune.with_parameters(PopulationTrial, plan=plan), resources),
             param_space=search_space(dimensions, args.members),
             tune_config=tune.TuneConfig(
                 metric=metric, mode="max", num_samples=args.trials, max_concurrent_trials=args.max_concurrent,
                 search_alg=OptunaSearch(seed=args.seed),
-                scheduler=ASHAScheduler(time_attr="iteration", max_t=max_iterations, grace_period=grace,
-                                        reduction_factor=args.reduction_factor)),
+                scheduler=GracefulASHA(board, time_attr="iteration", max_t=max_iterations, grace_period=grace,
+                                       reduction_factor=args.reduction_factor)),
             run_config=tune.RunConfig(name="ray", storage_path=str(folder), verbose=0,
-                                      callbacks=[SearchLines(metric, max_iterations)],
+                                      callbacks=[SearchLines(metric)],
                                       checkpoint_config=tune.CheckpointConfig(checkpoint_at_end=False),
                                       failure_config=tune.FailureConfig(max_failures=0)))
         return tuner.fit()
@@ -220,18 +220,23 @@ def run_search(args: TuneArgs, base: list[str], dimensions: list[Dimension], met
         ray.shutdown()
 
 
-def trial_rows(grid, folder: Path, metric: str, max_iterations: int) -> list[dict]:
-    """A dict per trial of the ResultGrid: its id, status (completed: it ran to its end, ``max_iterations`` or every
+def trial_id_of(result) -> str:
+    """A Ray result's trial id (its folder's name, ``PopulationTrial_<id>_...``, where it reported nothing)."""
+    return result.metrics.get("trial_id") or Path(result.path).name.split("_")[1]
+
+
+def trial_rows(grid, folder: Path, metric: str) -> list[dict]:
+    """A dict per trial of the ResultGrid: its id, status (completed: it ran to its end, the iterations or every
     member's verdict; stopped early by the scheduler; failed, and why), settings, metric, history and members (from
     its population.json where it wrote one), best first, failed last."""
     trials = []
     for result in grid:
-        trial_id = result.metrics.get("trial_id") or Path(result.path).name.split("_")[1]  # PopulationTrial_<id>_...
+        trial_id = trial_id_of(result)
         population = folder / f"trial_{trial_id}" / POPULATION_FILE
         rows = json.loads(population.read_text())["members"] if population.is_file() else []
-        ran = result.metrics.get("iteration") or 0
+        ended = result.metrics.get("finished") and not result.metrics.get("stopped")
         status = (f"failed: {str(result.error).strip().splitlines()[-1]}" if result.error else
-                  "completed" if result.metrics.get("finished") or ran >= max_iterations else "stopped early")
+                  "completed" if ended else "stopped early")
         history = ([] if result.error or result.metrics_dataframe is None or metric not in result.metrics_dataframe
                    else result.metrics_dataframe[["iteration", metric]].dropna().values.tolist())
         latest = result.metrics.get("members", {})
@@ -293,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"search {folder}: {args.trials} trials of {args.members} members of {args.task}, {max_iterations} "
           f"iterations at most, on {args.device}; maximising the best member's {metric}", flush=True)
     grid = run_search(args, base, dimensions, metric, folder, max_iterations)
-    trials = trial_rows(grid, folder, metric, max_iterations)
+    trials = trial_rows(grid, folder, metric)
     table = search_table(trials, metric)
     (folder / "search.md").write_text(table)
     (folder / "search.json").write_text(json.dumps(trials, indent=2) + "\n")

@@ -1,10 +1,13 @@
-"""The Ray side of ``tools.tune``: a Ray Tune trial that is a population, and the search's console lines.
+"""The Ray side of ``tools.tune``: a Ray Tune trial that is a population, the scheduler that stops it, and the
+search's console lines.
 
 ``PopulationTrial`` trains the trial's members as one population (``rl.training.Training`` with members: one batched
 env, one batched PPO, on the device Ray gives the trial) in a thread of the trial's actor. After each iteration in
 which a member was evaluated, the thread hands Ray a result (each member's latest evaluation, the best of them as the
-trial's metric) and waits until Ray asks for the next: a scheduler's stop is then a stop request, after which the
-members' folders are written as any run's (status ``STOPPED``) before the actor goes.
+trial's metric) and waits until Ray asks for the next. ASHA's stop reaches the trial as a request (``GracefulASHA``,
+``StopBoard``): its members stop after the iteration in progress, their folders written as any run's (status
+``STOPPED``), and the trial then ends itself. (Ray's own stop ends the trial's actor, and at a search's end it gives a
+stopping actor 10 s, fewer than a population's exports can take.)
 """
 
 from __future__ import annotations
@@ -13,7 +16,9 @@ import queue
 import threading
 from pathlib import Path
 
+import ray
 from ray import tune
+from ray.tune.schedulers import ASHAScheduler
 
 from ..rl.learners.batched_ppo.learner import Member
 from ..rl.training import Training
@@ -33,9 +38,40 @@ def trial_members(config: dict, seeds: list[int]) -> list[Member]:
     return [Member(seed, tuple(sorted(config.get(f"member{k}", {}).items()))) for k, seed in enumerate(seeds)]
 
 
+@ray.remote(num_cpus=0)
+class StopBoard:
+    """The trials the scheduler has stopped: each asks at its next step."""
+
+    def __init__(self):
+        self.stopped: set[str] = set()
+
+    def stop(self, trial_id: str):
+        self.stopped.add(trial_id)
+
+    def is_stopped(self, trial_id: str) -> bool:
+        return trial_id in self.stopped
+
+
+class GracefulASHA(ASHAScheduler):
+    """ASHA (``ASHAScheduler``'s arguments) whose stop is posted on ``board`` for the trial to carry out, the trial
+    going on meanwhile; a trial at ASHA's ``max_t`` iterations is left to end itself."""
+
+    def __init__(self, board, **asha):
+        super().__init__(**asha)
+        self.board = board
+
+    def on_trial_result(self, tune_controller, trial, result: dict) -> str:
+        action = super().on_trial_result(tune_controller, trial, result)
+        if action != self.STOP or result[self._time_attr] >= self._max_t:  # at its end the trial ends itself
+            return self.CONTINUE
+        ray.get(self.board.stop.remote(trial.trial_id))  # posted before the trial's next step asks
+        return self.CONTINUE
+
+
 class PopulationTrial(tune.Trainable):
     """One trial of a search: ``plan`` holds train.py's flags for every trial, the members' seeds, the metric (a field
-    of an evaluation, ``EpisodeSummary``'s) and the search's folder, in which this trial's is ``trial_<id>``."""
+    of an evaluation, ``EpisodeSummary``'s), the search's folder, in which this trial's is ``trial_<id>``, and the
+    scheduler's ``StopBoard``."""
 
     def setup(self, config: dict, plan: dict):
         self.plan, self.metric = plan, plan["metric"]
@@ -80,6 +116,8 @@ class PopulationTrial(tune.Trainable):
 
     def step(self) -> dict:
         if self.handed:
+            if ray.get(self.plan["board"].is_stopped.remote(self.trial_id)):
+                self._stop()
             self.resume.release()
         kind, value = self.results.get()
         self.handed = kind == "result"
@@ -87,27 +125,33 @@ class PopulationTrial(tune.Trainable):
             raise value
         if kind == "end":
             iterations = max(record.progress.iterations for record in self.training.loop.records)
-            return self._result(iterations) | {"finished": True, "done": True}
+            return self._result(iterations) | {"finished": True, "stopped": self.stopping, "done": True}
         return value
 
+    def _stop(self):
+        """The members stop after the iteration in progress (or the first, if they are being built)."""
+        self.stopping = True
+        if self.training is not None:
+            self.training.loop.request_stop(STOPPED)
+
     def cleanup(self):
-        """A trial the scheduler stops: its members stop after the iteration in progress, their folders written."""
+        """A trial Ray ends before its training did (the search interrupted): its members stop as ``_stop`` says,
+        their folders written while Ray waits."""
         if self.thread.is_alive():
-            self.stopping = True
-            if self.training is not None:
-                self.training.loop.request_stop(STOPPED)
+            self._stop()
             self.resume.release()
             self.thread.join()
 
 
 class SearchLines(tune.Callback):
-    """A line per trial result (the iteration, the trial's metric, its solved members), end and failure; a trial that
-    ends before ``max_iterations`` and before every member's verdict was stopped by the scheduler."""
+    """A line per trial result (the iteration, the trial's metric, its solved members), end and failure."""
 
-    def __init__(self, metric: str, max_iterations: int):
-        self.metric, self.max_iterations = metric, max_iterations
+    def __init__(self, metric: str):
+        self.metric = metric
 
     def on_trial_result(self, iteration, trials, trial, result, **info):
+        if result.get("finished"):  # the trial's end, which on_trial_complete says
+            return
         value = result.get(self.metric)
         shown = f"{value:.3f}" if value is not None else "-"
         print(f"trial {trial.trial_id} it {result['iteration']}: {self.metric} {shown} (best member), "
@@ -116,7 +160,7 @@ class SearchLines(tune.Callback):
     def on_trial_complete(self, iteration, trials, trial, **info):
         result = trial.last_result or {}
         ran = result.get("iteration", 0)
-        how = "completed" if result.get("finished") or ran >= self.max_iterations else "stopped early by the scheduler"
+        how = "stopped early by the scheduler" if result.get("stopped") or not result.get("finished") else "completed"
         print(f"trial {trial.trial_id} {how} at iteration {ran}", flush=True)
 
     def on_trial_error(self, iteration, trials, trial, **info):
