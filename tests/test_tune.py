@@ -97,6 +97,9 @@ def test_a_trial_that_fails_is_reported_and_the_search_goes_on(search):
      "--flags 'eval.min-interval=9 eval.max-interval=2': --eval.min-interval (9) must be at most"),
     (["--space", "num-envs=choice(64,128)", "--metric", "mean_reward"], "--metric mean_reward: an evaluation's fields"),
     ([], "--space: name at least one setting to search"),
+    (["--task", "nope", "--space", "num-envs=choice(64,128)"], "unknown task 'nope'; known tasks: cartpole-balance"),
+    (["--trials", "0", "--space", "num-envs=choice(64,128)"], "--trials and --members must be >= 1"),
+    (["--reduction-factor", "1", "--space", "num-envs=choice(64,128)"], "--reduction-factor must be > 1, got 1.0"),
 ])
 def test_bad_search_input_is_one_line(flags, message):
     optional_module("ray", "pip install -e '.[tune]'")
