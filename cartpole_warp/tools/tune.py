@@ -140,9 +140,9 @@ class Dimension:
         return {"uniform": tune.uniform, "loguniform": tune.loguniform}[self.draw](low, high)
 
 
-def check_space(args: TuneArgs) -> tuple[list[str], list[Dimension]]:
-    """train.py's flags for every trial and the space's settings, each checked: ConfigError in one line for a flag
-    the search sets, an unknown setting, or a value train.py refuses."""
+def check_space(args: TuneArgs) -> tuple[list[str], list[Dimension], int]:
+    """train.py's flags for every trial, the space's settings, each checked, and the trials' iterations: ConfigError
+    in one line for a flag the search sets, an unknown setting, or a value train.py refuses."""
     from .tune_trial import trial_flags
 
     dimensions = [Dimension.parse(entry) for entry in args.space]
@@ -157,11 +157,11 @@ def check_space(args: TuneArgs) -> tuple[list[str], list[Dimension]]:
         require(not set_here, f"{entry}: {flag} is set by the search for every trial (the search's own options)")
     base = ["--task", args.task, *extra, "--device", args.device, "--logger", "none",
             *(["--max-iterations", str(args.max_iterations)] if args.max_iterations else [])]
-    checked_config(base, f"--flags {args.flags!r}")
+    max_iterations = checked_config(base, f"--flags {args.flags!r}").agent.max_iterations
     for dimension in (d for d in dimensions if not d.member):
         for value in dimension.values:  # a choice's every option, a range's two ends
             checked_config(base + trial_flags({dimension.name: value}), f"--space {dimension.name}={value}")
-    return base, dimensions
+    return base, dimensions, max_iterations
 
 
 def checked_config(flags: list[str], what: str):
@@ -226,17 +226,18 @@ def trial_id_of(result) -> str:
 
 
 def trial_rows(grid, folder: Path, metric: str) -> list[dict]:
-    """A dict per trial of the ResultGrid: its id, status (completed: it ran to its end, the iterations or every
-    member's verdict; stopped early by the scheduler; failed, and why), settings, metric, history and members (from
-    its population.json where it wrote one), best first, failed last."""
+    """A dict per trial of the ResultGrid: its id, status (completed, ``tune_trial.completed``; stopped early;
+    failed, and why), settings, metric, history and members (from its population.json where it wrote one), best
+    first, failed last."""
+    from .tune_trial import completed
+
     trials = []
     for result in grid:
         trial_id = trial_id_of(result)
         population = folder / f"trial_{trial_id}" / POPULATION_FILE
         rows = json.loads(population.read_text())["members"] if population.is_file() else []
-        ended = result.metrics.get("finished") and not result.metrics.get("stopped")
         status = (f"failed: {str(result.error).strip().splitlines()[-1]}" if result.error else
-                  "completed" if ended else "stopped early")
+                  "completed" if completed(result.metrics) else "stopped early")
         history = ([] if result.error or result.metrics_dataframe is None or metric not in result.metrics_dataframe
                    else result.metrics_dataframe[["iteration", metric]].dropna().values.tolist())
         latest = result.metrics.get("members", {})
@@ -291,8 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         require(metric in fields, f"--metric {metric}: an evaluation's fields are {', '.join(fields)}")
         require(args.trials >= 1 and args.members >= 1, "--trials and --members must be >= 1")
         require(args.reduction_factor > 1, f"--reduction-factor must be > 1, got {args.reduction_factor}")
-        base, dimensions = check_space(args)
-        max_iterations = checked_config(base, "--flags").agent.max_iterations
+        base, dimensions, max_iterations = check_space(args)
         name = args.name or f"{datetime.datetime.now():%Y-%m-%d_%H-%M-%S}_{args.task}"
         folder = (args.log_dir / name).absolute()
     print(f"search {folder}: {args.trials} trials of {args.members} members of {args.task}, {max_iterations} "

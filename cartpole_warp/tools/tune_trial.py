@@ -33,6 +33,12 @@ def trial_flags(settings: dict) -> list[str]:
     return [arg for name, value in settings.items() for arg in (f"--{name}", *str(value).split())]
 
 
+def completed(last_result: dict) -> bool:
+    """Whether a trial whose last result is ``last_result`` ran to its own end (its iterations, or every member's
+    verdict), rather than being stopped by the scheduler or by Ray."""
+    return bool(last_result.get("finished")) and not last_result.get("stopped")
+
+
 def trial_members(config: dict, seeds: list[int]) -> list[Member]:
     """The members of a trial's ``config``: member k has seed ``seeds[k]`` and its draws ``config["member<k>"]``."""
     return [Member(seed, tuple(sorted(config.get(f"member{k}", {}).items()))) for k, seed in enumerate(seeds)]
@@ -160,7 +166,7 @@ class SearchLines(tune.Callback):
     def on_trial_complete(self, iteration, trials, trial, **info):
         result = trial.last_result or {}
         ran = result.get("iteration", 0)
-        how = "stopped early by the scheduler" if result.get("stopped") or not result.get("finished") else "completed"
+        how = "completed" if completed(result) else "stopped early by the scheduler"
         print(f"trial {trial.trial_id} {how} at iteration {ran}", flush=True)
 
     def on_trial_error(self, iteration, trials, trial, **info):
