@@ -1,25 +1,18 @@
-"""The committed stage is what usd/make_cartpole.py writes, and it holds the cartpole's physical facts."""
-
-import importlib.util
+"""The committed stage is what usd/make_cartpole.py writes (``engine.stages``), and it holds the cartpole's physical
+facts."""
 
 import pytest
 from pxr import Usd, UsdGeom, UsdPhysics
 
+from cartpole_warp.engine import stages
 from cartpole_warp.settings.files import data_path
 
 STAGE = data_path("usd", "cartpole.usda")
 
 
-def load_writer(repo):
-    spec = importlib.util.spec_from_file_location("make_cartpole", repo / "usd" / "make_cartpole.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_committed_stage_matches_the_script(repo):
     assert repo / "usd" / "cartpole.usda" == STAGE, "a checkout uses the stage at the top of the repository"
-    assert STAGE.read_text() == load_writer(repo).stage_text(), "run: python usd/make_cartpole.py"
+    assert STAGE.read_text() == stages.stage_text(), "run: python usd/make_cartpole.py"
 
 
 def test_stage_schemas_and_facts():

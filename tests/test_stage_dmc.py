@@ -3,7 +3,6 @@ writes, it holds the numbers of dm_control/suite/cartpole.xml, Newton reads them
 cart-pole with them; and a self-test of the numpy transcription of dm_control's swing-up reward (dmc_reference.py).
 """
 
-import importlib.util
 import math
 from pathlib import Path
 
@@ -12,6 +11,8 @@ import pytest
 import warp as wp
 from dmc_reference import swingup_observations, swingup_reward, tolerance
 from pxr import Gf, Usd, UsdGeom, UsdPhysics
+
+from cartpole_warp.engine import stages
 
 REPO = Path(__file__).resolve().parent.parent
 STAGE = REPO / "usd" / "cartpole_dmc.usda"
@@ -29,13 +30,6 @@ DURATION_S = 1.2
 PHYSICS_DT_S = 1.0 / 4000.0
 
 
-def load_writer():
-    spec = importlib.util.spec_from_file_location("make_cartpole", REPO / "usd" / "make_cartpole.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def mujoco_mass_properties():
     """MuJoCo's body mass, centre of mass and principal inertia of dm_control's cart and pole, in the stage's axes
     (dm_control slides along X and hinges about Y; the stage slides along Y and hinges about X)."""
@@ -48,7 +42,7 @@ def mujoco_mass_properties():
 
 
 def test_committed_stages_match_the_script():
-    writer = load_writer()
+    writer = stages
     assert STAGE.read_text() == writer.dmc_stage_text(), "run: python usd/make_cartpole.py"
     assert writer.stage_text() != writer.dmc_stage_text()
     for n in writer.CHAINS:
@@ -122,7 +116,7 @@ def test_stage_schemas_and_facts():
     assert (capsule.GetRadiusAttr().Get(), capsule.GetHeightAttr().Get()) == pytest.approx((POLE_RADIUS_M, 1.0))
     assert tuple(capsule.GetPrim().GetAttribute("xformOp:translate").Get()) == pytest.approx((0, 0, 0.5))
 
-    writer = load_writer()
+    writer = stages
     expected = {"cart": (CART_MASS_KG, (0, 0, 0), writer.box_inertia(CART_MASS_KG, (0.3, 0.4, 0.2))),
                 "pole": (POLE_MASS_KG, (0, 0, 0.5), writer.capsule_inertia(POLE_MASS_KG, POLE_RADIUS_M, 1.0))}
     for body, (mass, com, inertia) in expected.items():
@@ -134,7 +128,7 @@ def test_stage_schemas_and_facts():
 
 def test_inertias_are_mujocos():
     """The capsule formula of make_cartpole.py and the stage agree with MuJoCo's own mass properties of the XML."""
-    writer = load_writer()
+    writer = stages
     mj = mujoco_mass_properties()
     pole_mass, pole_com, pole_inertia = mj["pole"]
     r, h = POLE_RADIUS_M, POLE_LENGTH_M

@@ -456,7 +456,7 @@ def test_help_says_whose_defaults_it_shows_and_what_sets_them(run_main):
     (["--agent.algorithm.num-mini-batches", "5"], "error: --agent.algorithm.num-mini-batches (5) must divide"),
     (["--config", "nonexistent"],
      "error: unknown preset 'nonexistent'; known presets: default, isaac_lab, multiarm_double_pendulum, "
-     "multiarm_pendulum, rig_swingup, robust, tutorial"),
+     "multiarm_pendulum, multiarm_triple_pendulum, rig_swingup, robust, tutorial"),
     (["--num-envs", "abc"], "--num-envs"),
     (["--env.sim.solver", "bullet"], "bullet"),
     (["--agent.algorithm.entropy", "1"], "--agent.algorithm.entropy"),

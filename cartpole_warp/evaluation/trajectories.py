@@ -78,8 +78,14 @@ def read_trajectory(path: Path, roles: tuple[str, ...], sliders: list[bool], num
     require(len({len(column) for column in columns.values()}) == 1, f"{path}: columns of different lengths")
     positions, velocities = column_names(roles, sliders)
     actions = ["action"] if num_actions == 1 else [f"action_{i}" for i in range(num_actions)]
+    joints = [name.removesuffix(suffix) for name in columns for suffix in ("_pos_m", "_angle_rad")
+              if name.endswith(suffix)]
+    mismatch = (f"; its joints ({', '.join(joints)}) are not the task's ({', '.join(roles)})"
+                if set(joints) != set(roles) else "")
     missing = [name for name in ["time_s", *actions, *positions] if name not in columns]
-    require(not missing, f"{path}: missing columns {', '.join(missing)} (has {', '.join(columns)})")
+    require(not missing, f"{path}: missing columns {', '.join(missing)} (has {', '.join(columns)}){mismatch}")
+    require(not mismatch, f"{path}: a recording of more joints than the task's{mismatch}: give the task whose joints "
+                          "it recorded")
     length = len(columns["time_s"])
     nan = np.full(length, np.nan)
     recording = Recording(

@@ -41,11 +41,22 @@ import torch
 import yaml
 
 from .. import tasks
-from ..engine.parameters import ACTUATOR_SCALE, COM, DAMPING, FRICTION, GRAVITY, Parameter, of_quantity
-from ..evaluation.trajectories import Recording, column_names, read_trajectory
+from ..engine.parameters import (
+    ACTUATOR_SCALE,
+    COM,
+    DAMPING,
+    FRICTION,
+    GRAVITY,
+    INERTIA_SCALE,
+    MASS,
+    Parameter,
+    of_quantity,
+)
+from ..evaluation.trajectories import Recording, column_names, read_trajectory, write_trajectory
 from ..gradients.rollout import DifferentiableRollout, Trajectory
 from ..settings.config import merge, require
 from ..settings.files import write_text
+from . import chain
 
 NOT_FITTED_BY_DEFAULT = (ACTUATOR_SCALE.key, GRAVITY.key)
 """Left at the stage's values unless ``--fit`` names them: scaling every mass, damping, friction and the actuator
@@ -53,8 +64,8 @@ together moves nothing (only their ratios are in the motion), and gravity is kno
 EQUALLY_GOOD = 1.1
 """Guesses whose loss is within this factor of the best one's count as fitting as well."""
 INITIAL_LM_LAMBDA = 1e-2
-"""Levenberg-Marquardt's first lambda, the damping of its steps (per guess: divided by 3 after a step that lowers the
-loss, times 4 after one that does not)."""
+"""Levenberg-Marquardt's first lambda, the damping of its steps (per guess: divided by 3 after an iteration whose
+step lowers the loss, times 4 after each step tried that does not)."""
 JACOBIAN_STEP = 1e-3
 """Forward-difference step of the Jacobian's columns (in units of each signal's spread, and of a log-parameter)."""
 IDENTIFIED_WITHIN = 0.01
@@ -74,6 +85,17 @@ RATE_TOLERANCE = 1e-3
 rounded to the microsecond at 60 Hz are 2e-5 off)."""
 NATURAL_FRACTION = 0.01
 """A damping's or a friction's unit in the fit: this fraction of its joint's natural one (``natural_units``)."""
+RESOLVED = 2e-6
+"""Also converged: residuals whose RMS is below this fraction of each signal's spread, finer than a float32 rollout
+resolves (a noise-free recording of the model itself)."""
+LM_TRIALS = 4
+"""Steps tried on one Jacobian in an iteration, the damping times 4 after each that does not lower the loss."""
+PLAUSIBLE_FACTOR = 10.0
+"""A mass or an inertia scale fitted beyond this factor of the stage's value (either way) is flagged in the report as
+outside physical sense: a scale near 0 is an inertia that other parameters took over."""
+COM_SPAN = 2.0
+"""A centre of mass fitted below its joint or beyond this factor of the stage's distance is flagged likewise: the
+stage's shapes are centred on their centres of mass, so this is past the shape's far end."""
 
 
 @dataclass
@@ -103,8 +125,16 @@ class SysidArgs:
     spread: float = 0.5
     """Each guess draws a parameter's starting value log-uniformly within a factor 1 + this of the stage's."""
     iterations: int = 30
-    """Levenberg-Marquardt iterations (each: the gradient by one backward pass through the simulator, the Jacobian
-    by forward differences, a step on the parameters and every window's start)."""
+    """At most this many Levenberg-Marquardt iterations with each window length (each: the gradient by one backward
+    pass through the simulator, the Jacobian by forward differences, a step on the parameters and every window's
+    start); a fit ends earlier once converged (``--tolerance``), and says so either way."""
+    tolerance: float = 1e-4
+    """Converged: an undamped Gauss-Newton step from the best guess would lower its loss by less than this fraction
+    of it (the local model sees no further fall), or its residuals are below float32's resolution."""
+    start_from: Path | None = None
+    """An earlier fit's result (``sysid_result.yaml`` or ``tools.multiarm``'s ``multiarm_result.yaml``; ``--from``):
+    its fitted values start this fit (the first guess; the others drawn ``--spread`` around them), and without
+    ``--fit`` its parameter list is this fit's."""
     randomize: float = 0.0
     """The preset's randomization ranges: the fit times (1 -/+ this) (0: the fit exactly)."""
     device: str = "cpu"
@@ -189,6 +219,8 @@ class Problem:
     ``dt``."""
     held: list[bool]
     """Per role: whether the rig holds its joint still (``sim.held_joints``)."""
+    start: dict[str, float] = field(default_factory=dict)
+    """The earlier fit's values that start this one (``--from``), by parameter."""
 
 
 def read_problem(args: SysidArgs) -> Problem:
@@ -209,11 +241,30 @@ def read_problem(args: SysidArgs) -> Problem:
     settable = [p.name for p in table if p.quantity.differentiable]
     stage = {n: float(v[0]) for n, v in probe.physics.stage_values().items() if n in settable}
     on_joint = [p.name for p in of_quantity(table, COM) if bodies[p.role_index].com_distance == 0.0]
-    names = fitted_names(args.fit, settable, on_joint)
+    start = earlier_fit(args)
+    names = fitted_names(args.fit or list(start), settable, on_joint)
+    dropped = sorted(set(start) - set(names))
+    require(not dropped, f"--from {args.start_from} fitted {', '.join(dropped)}, which --fit leaves out (this fit "
+                         "would put them back to the stage's values): add them to --fit")
     natural = natural_units(table, bodies, sliders, probe.physics.gravity_m_s2)
     units = {name: stage[name] if stage[name] > 0 else NATURAL_FRACTION * natural.get(name, 1.0) for name in names}
     probe.close()
-    return Problem(recording, clear, names, stage, units, roles, sliders, table, dt, sim, held)
+    return Problem(recording, clear, names, stage, units, roles, sliders, table, dt, sim, held, start)
+
+
+def earlier_fit(args: SysidArgs) -> dict[str, float]:
+    """The fitted values of ``--from``'s result file (none without it); ConfigError in one line where it is not a fit
+    of this task."""
+    if args.start_from is None:
+        return {}
+    require(args.start_from.is_file(), f"--from: no file {args.start_from}")
+    earlier = yaml.safe_load(args.start_from.read_text()) or {}
+    fitted = earlier.get("fitted") if isinstance(earlier, dict) else None
+    require(isinstance(fitted, dict) and fitted,
+            f"--from {args.start_from}: no 'fitted' values (a sysid_result.yaml or multiarm_result.yaml holds them)")
+    task = earlier.get("task", args.task)
+    require(task == args.task, f"--from {args.start_from} is a fit of --task {task}, not of {args.task}")
+    return {name: float(value) for name, value in fitted.items()}
 
 
 def natural_units(table: tuple[Parameter, ...], bodies: list, sliders: list[bool], gravity_m_s2: float
@@ -329,13 +380,18 @@ class WindowFit:
         self.guess_of = torch.arange(n, device=device) // self.num_windows
 
     def first_guesses(self, seed: int, spread: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """The starting ``theta``, each parameter log-uniform within a factor 1 + ``spread`` of the stage's value
-        (guess 0: the stage's values; near 0 where the stage's value is 0), and the windows' ``starts`` as recorded."""
+        """The starting ``theta``, each parameter log-uniform within a factor 1 + ``spread`` of its start (guess 0:
+        the start itself): the earlier fit's value (``Problem.start``) or the stage's (near 0 where that is 0); and
+        the windows' ``starts`` as recorded."""
         generator = torch.Generator().manual_seed(seed)
-        theta = ((torch.rand((self.guesses, len(self.problem.names)), generator=generator) * 2 - 1)
+        noise = ((torch.rand((self.guesses, len(self.problem.names)), generator=generator) * 2 - 1)
                  * math.log1p(spread)).to(self.device)
-        theta[0] = 0.0
-        theta = torch.where(self.linear, theta.abs(), theta)
+        noise[0] = 0.0
+        start = torch.tensor([self.problem.start.get(name, self.problem.stage[name]) for name in self.problem.names],
+                             device=self.device) / self.base
+        log_start = torch.log(torch.where(self.linear, 1.0, start.clamp(min=1e-30)))
+        theta = torch.where(self.linear, torch.where(start > 0, start * torch.exp(noise), noise.abs()),
+                            log_start + noise)
         return theta, torch.zeros((self.num_envs, len(self.free_columns)), device=self.device)
 
     def physical(self, theta: torch.Tensor) -> torch.Tensor:
@@ -395,39 +451,82 @@ class WindowFit:
     def step(self, theta: torch.Tensor, starts: torch.Tensor, lm_lambda: torch.Tensor):
         """One Levenberg-Marquardt iteration of every guess (``lm_lambda`` (G,): each one's damping): the exact gradient
         through the simulator (one backward pass), the Jacobian's columns by forward differences (in the same batched
-        rollout), a step on ``theta``
-        and every window's start, kept where it lowers the guess's loss. The new theta, starts and lambdas, and the
-        best guess's loss."""
+        rollout), then up to ``LM_TRIALS`` steps on ``theta`` and every window's start on that Jacobian, the damping
+        times 4 after each that does not lower a guess's loss, kept where one does. The new theta, starts and lambdas,
+        the best guess's loss, and the fall of the best guess's loss that Gauss-Newton predicts, over that loss
+        (``predicted_fall``; 0 where its residuals are ``RESOLVED``)."""
         theta_leaf, starts_leaf = theta.clone().requires_grad_(), starts.clone().requires_grad_()
         variants = self.variants(theta_leaf, starts_leaf)
         first = self.residuals(variants[:self.copies])[0]
         loss = self.per_guess(first[0].detach())
         self.per_guess(first[0]).sum().backward()
-        grad_theta, grad_starts, guess_of, size = theta_leaf.grad, starts_leaf.grad, self.guess_of, theta.shape[1]
+        grad_theta, grad_starts = theta_leaf.grad, starts_leaf.grad
         _, a, b = self.jacobians(variants, first)
         with torch.no_grad():
-            ata, atb, reduced, solve_ata = self.schur(a, b, lm_lambda[guess_of], grad_starts[:, :, None])
-            reduced_normal = torch.zeros((self.guesses, size, size), device=self.device).index_add_(
-                0, guess_of, reduced)
-            reduced_normal += lm_lambda[:, None, None] * torch.eye(size, device=self.device)
-            rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
-                0, guess_of, (atb.transpose(1, 2) @ solve_ata[:, :, -1:]).squeeze(2))
-            step_theta = -torch.linalg.solve(reduced_normal, rhs)
-            at_bound = self.linear & (theta <= 0.0) & (step_theta < 0.0)  # held at 0: the step solved without them
-            if at_bound.any():
-                free = ~at_bound
-                reduced_normal = torch.where(free[:, :, None] & free[:, None, :], reduced_normal,
-                                             torch.eye(size, device=self.device))
-                step_theta = -torch.linalg.solve(reduced_normal, torch.where(free, rhs, 0.0))
-            step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
-            trial_theta, trial_starts = theta + step_theta, starts + step_starts.squeeze(2)
-            trial_theta = torch.where(self.linear, trial_theta.clamp(min=0.0), trial_theta)
-            trial_loss = self.per_guess(self.residuals([(trial_theta, trial_starts)])[0][0])
-            better = trial_loss < loss
-            theta = torch.where(better[:, None], trial_theta, theta)
-            starts = torch.where(better[guess_of][:, None], trial_starts, starts)
-            lm_lambda = torch.where(better, lm_lambda / 3, lm_lambda * 4).clamp(1e-9, 1e9)
-        return theta, starts, lm_lambda, torch.minimum(loss, trial_loss).min().item()
+            best = int(loss.nan_to_num(nan=math.inf).argmin())
+            improved = torch.zeros(self.guesses, dtype=torch.bool, device=self.device)
+            new_theta, new_starts, new_loss = theta, starts, loss
+            for trial in range(LM_TRIALS):
+                step_theta, step_starts, at_bound = self.solve(a, b, grad_theta, grad_starts, theta, lm_lambda)
+                if trial == 0:
+                    fall = self.predicted_fall(a, b, grad_theta, grad_starts, ~(at_bound & (theta <= 0.0)))
+                trial_theta = theta + step_theta
+                trial_theta = torch.where(self.linear, trial_theta.clamp(min=0.0), trial_theta)
+                trial_starts = starts + step_starts
+                trial_loss = self.per_guess(self.residuals([(trial_theta, trial_starts)])[0][0])
+                better = ~improved & (trial_loss < loss)
+                new_theta = torch.where(better[:, None], trial_theta, new_theta)
+                new_starts = torch.where(better[self.guess_of][:, None], trial_starts, new_starts)
+                new_loss = torch.where(better, trial_loss, new_loss)
+                improved |= better
+                lm_lambda = torch.where(improved, lm_lambda, lm_lambda * 4).clamp(1e-9, 1e9)
+                if improved.all():
+                    break
+            lm_lambda = torch.where(improved, lm_lambda / 3, lm_lambda).clamp(1e-9, 1e9)
+        resolved = float(loss[best]) <= 0.5 * RESOLVED**2 * first[0].shape[1] * self.num_windows
+        return (new_theta, new_starts, lm_lambda, new_loss.min().item(),
+                0.0 if resolved else float(fall[best] / loss[best].clamp(min=1e-30)))
+
+    def solve(self, a: torch.Tensor, b: torch.Tensor, grad_theta: torch.Tensor, grad_starts: torch.Tensor,
+              theta: torch.Tensor, lm_lambda: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Levenberg-Marquardt's step at damping ``lm_lambda`` on ``theta`` (G, P) and every window's start (N, S),
+        each window's start eliminated (``schur``); a damping or a friction that the step would take below 0 goes to
+        0 and the others' step is solved with it held there (returned: which, (G, P) bool)."""
+        guess_of, size = self.guess_of, theta.shape[1]
+        ata, atb, reduced, solve_ata = self.schur(a, b, lm_lambda[guess_of], grad_starts[:, :, None])
+        eye = torch.eye(size, device=self.device)
+        normal = torch.zeros((self.guesses, size, size), device=self.device).index_add_(0, guess_of, reduced)
+        normal += lm_lambda[:, None, None] * eye
+        rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
+            0, guess_of, (atb.transpose(1, 2) @ solve_ata[:, :, -1:]).squeeze(2))
+        step_theta = -torch.linalg.solve(normal, rhs)
+        at_bound = self.linear & (theta + step_theta < 0.0)
+        if at_bound.any():
+            free, to_bound = ~at_bound, torch.where(at_bound, -theta, 0.0)
+            coupled = rhs + (normal @ to_bound[:, :, None]).squeeze(2)
+            normal = torch.where(free[:, :, None] & free[:, None, :], normal, eye)
+            step_theta = torch.where(free, -torch.linalg.solve(normal, torch.where(free, coupled, 0.0)), to_bound)
+        step_starts = -torch.linalg.solve(ata, grad_starts[:, :, None] + atb @ step_theta[guess_of][:, :, None])
+        return step_theta, step_starts.squeeze(2), at_bound
+
+    def predicted_fall(self, a: torch.Tensor, b: torch.Tensor, grad_theta: torch.Tensor, grad_starts: torch.Tensor,
+                       free: torch.Tensor) -> torch.Tensor:
+        """(G,) the fall of each guess's loss that an undamped Gauss-Newton step predicts, g' (J'J)^-1 g / 2 (each
+        window's start eliminated, the parameters held at their bound of 0 (``free`` False) left out): near 0 at a
+        minimum, whatever Levenberg-Marquardt's damping."""
+        size, guess_of = grad_theta.shape[1], self.guess_of
+        _, atb, reduced, solved = self.schur(a, b, torch.full((self.num_envs,), 1e-9, device=self.device),
+                                             grad_starts[:, :, None])
+        starts_part = 0.5 * (grad_starts[:, None, :] @ solved[:, :, -1:]).reshape(-1)
+        normal = torch.zeros((self.guesses, size, size), device=self.device).index_add_(0, guess_of, reduced)
+        rhs = grad_theta - torch.zeros_like(grad_theta).index_add_(
+            0, guess_of, (atb.transpose(1, 2) @ solved[:, :, -1:]).squeeze(2))
+        eye = torch.eye(size, device=self.device)
+        normal = torch.where(free[:, :, None] & free[:, None, :], normal, eye)
+        normal = normal + 1e-9 * normal.diagonal(dim1=1, dim2=2).amax(dim=1)[:, None, None] * eye
+        rhs = torch.where(free, rhs, 0.0)
+        theta_part = 0.5 * (rhs[:, None, :] @ torch.linalg.solve(normal, rhs[:, :, None])).reshape(-1)
+        return torch.zeros(self.guesses, device=self.device).index_add_(0, guess_of, starts_part) + theta_part
 
     @torch.no_grad()
     def standard_errors(self, theta: torch.Tensor, starts: torch.Tensor):
@@ -473,9 +572,22 @@ class WindowFit:
                   "not_identified": [name for name in names if (fitted[name] > 0 or stage[name] > 0)
                                      and standard_error[name] > IDENTIFIED_WITHIN * max(fitted[name], stage[name])],
                   "residual_rms": {pos: float(r) for pos, r in
-                                   zip(column_names(problem.roles, problem.sliders)[0], residual)}}
+                                   zip(column_names(problem.roles, problem.sliders)[0], residual)},
+                  "implausible": implausible(fitted, stage, problem.table)}
         equally_good = int((losses <= losses[best] * EQUALLY_GOOD).sum())
         return result, equally_good, out.q.detach()[:, best_windows].cpu().numpy()
+
+
+def implausible(fitted: dict[str, float], stage: dict[str, float], table: tuple[Parameter, ...]) -> dict[str, str]:
+    """The fitted values outside physical sense (``PLAUSIBLE_FACTOR``, ``COM_SPAN``), each with why."""
+    flags = {}
+    for p in (p for p in table if p.name in fitted and stage[p.name] > 0):
+        value, base = fitted[p.name], stage[p.name]
+        if p.quantity in (MASS, INERTIA_SCALE) and not 1 / PLAUSIBLE_FACTOR <= value / base <= PLAUSIBLE_FACTOR:
+            flags[p.name] = f"{value / base:.3g}x the stage's, beyond {PLAUSIBLE_FACTOR:g}x either way"
+        elif p.quantity is COM and not 0 <= value <= COM_SPAN * base:
+            flags[p.name] = (f"{value:.3g} m from its joint, outside the stage's shape (0-{COM_SPAN * base:.3g} m)")
+    return flags
 
 
 def fit(args: SysidArgs) -> dict:
@@ -489,14 +601,32 @@ def fit_and_predict(args: SysidArgs) -> tuple[dict, dict[str, np.ndarray]]:
     recording's path."""
     check_args(args)
     problem = read_problem(args)
+    told = chain.of(args.task, args.config, problem.names)
+    for line in told.lines() if told else []:
+        print(line)
     start = time.perf_counter()
-    fitter, theta, starts = fit_windows(problem, args, start)
+    fitter, theta, starts, stages = fit_windows(problem, args, start)
     result, equally_good, simulated = fitter.result(args, theta, starts, start)
+    result["iterations"], result["identifiability"] = stages, told.lines() if told else []
     report(result, equally_good)
     output = args.output or args.trajectory.with_name(args.trajectory.stem + "_sysid")
     labels = column_names(problem.roles, problem.sliders)[0]
     plot(output / "sysid_fit.png", problem.recording, fitter.starts, simulated, problem.dt, labels)
-    result["prediction"], positions = {}, {}
+    result["prediction"], positions = predict_recordings(args, problem, result["fitted"], output)
+    report_prediction(result["prediction"], labels)
+    write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
+    preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.table)
+    print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'}, the simulated recordings "
+          f"{output / 'sysid_simulated_<n>.npz'} and {preset} (python train.py --task {args.task} --config {preset})")
+    return result, positions
+
+
+def predict_recordings(args: SysidArgs, problem: Problem, fitted: dict, output: Path) -> tuple[dict, dict]:
+    """The fitted recording and each ``--validate`` one, every episode simulated from its first row (``predict``):
+    their errors and simulated positions by path; each one's simulation written as ``sysid_simulated_<n>.npz`` (the
+    recording's columns; NaN past an env's end) and plotted against it as ``sysid_prediction_<n>.png``."""
+    labels = column_names(problem.roles, problem.sliders)[0]
+    prediction, positions = {}, {}
     for number, path in enumerate([args.trajectory, *args.validate]):
         recording = problem.recording if number == 0 else read_trajectory(path, problem.roles, problem.sliders,
                                                                           problem.recording.action.shape[1])
@@ -506,17 +636,18 @@ def fit_and_predict(args: SysidArgs) -> tuple[dict, dict[str, np.ndarray]]:
             require(abs(interval - problem.dt) <= RATE_TOLERANCE * problem.dt,
                     f"{path}: rows every {interval:g} s; they must come every {problem.dt:g} s, as the fitted "
                     "recording's")
-        simulated, rms = predict(args, problem, result["fitted"], recording)
-        result["prediction"][str(path)], positions[str(path)] = rms, simulated
+        simulated, rms = predict(args, problem, fitted, recording)
+        prediction[str(path)], positions[str(path)] = rms, simulated
+        rows = np.full_like(recording.q, np.nan)
+        for e, first in enumerate(first_rows(recording)):
+            length = int((recording.episode == recording.episode[first]).sum())
+            rows[first:first + length] = simulated[:length, e]
+        write_trajectory(output / f"sysid_simulated_{number}.npz", replace(recording, q=rows, qd=np.full_like(rows,
+                         np.nan)), problem.roles, problem.sliders)
         in_sequence = replace(recording, time_s=np.arange(len(recording.time_s)) * problem.dt)  # episodes side by side
         plot(output / f"sysid_prediction_{number}.png", in_sequence, first_rows(recording), simulated, problem.dt,
              labels)
-    report_prediction(result["prediction"], labels)
-    write_text(output / "sysid_result.yaml", yaml.safe_dump(result, sort_keys=False))
-    preset = write_preset(output / "sysid_preset.yaml", args, problem.stage, result["fitted"], problem.table)
-    print(f"wrote {output / 'sysid_fit.png'}, {output / 'sysid_result.yaml'} and {preset} "
-          f"(python train.py --task {args.task} --config {preset})")
-    return result, positions
+    return prediction, positions
 
 
 def check_args(args: SysidArgs):
@@ -525,12 +656,15 @@ def check_args(args: SysidArgs):
     require(bool(args.window_steps) and min(*args.window_steps, args.window_stride, args.guesses, args.iterations) >= 1,
             "--window-steps (one length or more), --window-stride, --guesses and --iterations must be >= 1")
     require(args.spread >= 0 and 0 <= args.randomize < 1, "--spread must be >= 0 and --randomize in [0, 1)")
+    require(0 <= args.tolerance < 1, "--tolerance must be in [0, 1): the loss's relative fall that counts as converged")
 
 
-def fit_windows(problem: Problem, args: SysidArgs, start: float) -> tuple[WindowFit, torch.Tensor, torch.Tensor]:
+def fit_windows(problem: Problem, args: SysidArgs, start: float
+                ) -> tuple[WindowFit, torch.Tensor, torch.Tensor, list[dict]]:
     """Levenberg-Marquardt on windows of each of ``args.window_steps`` in turn, each from the last one's parameters
-    (the first from the starting guesses), printing its progress; the last fit, its parameters and windows' starts."""
-    theta = None
+    (the first from the starting guesses), until converged or ``args.iterations``, printing its progress; the last
+    fit, its parameters and windows' starts, and per window length its iterations and whether it converged."""
+    theta, stages = None, []
     for steps in args.window_steps:
         fitter = WindowFit(problem, args, steps)
         first_theta, starts = fitter.first_guesses(args.seed, args.spread)
@@ -539,11 +673,32 @@ def fit_windows(problem: Problem, args: SysidArgs, start: float) -> tuple[Window
               f"{args.guesses} guesses = {fitter.num_envs} envs on {fitter.device}; fitting "
               f"{', '.join(problem.names)}", flush=True)
         lm_lambda = torch.full((args.guesses,), INITIAL_LM_LAMBDA, device=fitter.device)
+        losses, fall = [], math.inf
         for it in range(args.iterations):
-            theta, starts, lm_lambda, best_loss = fitter.step(theta, starts, lm_lambda)
-            print(f"  iteration {it + 1}/{args.iterations}: best loss {best_loss:.3e} "
-                  f"({time.perf_counter() - start:.1f} s)", flush=True)
-    return fitter, theta, starts
+            theta, starts, lm_lambda, best_loss, fall = fitter.step(theta, starts, lm_lambda)
+            losses.append(best_loss)
+            print(f"  iteration {it + 1}/{args.iterations}: best loss {best_loss:.3e}, Gauss-Newton's predicted fall "
+                  f"{fall:.1e} of it ({time.perf_counter() - start:.1f} s)", flush=True)
+            if fall <= args.tolerance:
+                break
+        stages.append({"window_steps": steps, "iterations": len(losses), "converged": fall <= args.tolerance,
+                       "predicted_fall": fall})
+        print(f"  converged after {len(losses)} iterations" if fall <= args.tolerance else
+              f"  not converged in --iterations {args.iterations} (a step would lower the loss by {fall:.1e} of it, "
+              f"above --tolerance {args.tolerance:g}): raise --iterations, or go on with --from", flush=True)
+    return fitter, theta, starts, stages
+
+
+def arm_chain(problem: Problem) -> bool:
+    """Whether the recording is of a chain of two arms or more on a held cart (a multi-arm rig's free swing): then the
+    report gives each arm's error in its angle from upright too, as the rig's encoders measure it."""
+    sliders = problem.sliders
+    return len(sliders) > 2 and sliders[0] and problem.held[0] and not any(sliders[1:])
+
+
+def arm_angles(q: np.ndarray) -> np.ndarray:
+    """Each arm's angle from upright from a cart task's joint positions (..., 1 + arms): the sums of the joints'."""
+    return np.cumsum(q[..., 1:], axis=-1)
 
 
 def first_rows(recording: Recording) -> list[int]:
@@ -581,13 +736,17 @@ def predict(args: SysidArgs, problem: Problem, fitted: dict, recording: Recordin
     simulated[~torch.stack(alive).cpu().numpy()] = np.nan
     simulated[0] = recording.q[firsts]
     hinge = torch.tensor([not s for s in problem.sliders])
+    chain_of_arms = arm_chain(problem)
     rms = []
     for e, (first, length) in enumerate(zip(firsts, lengths)):
-        error = angle_error(torch.as_tensor(simulated[:length, e]), torch.as_tensor(recording.q[first:first + length]),
-                            hinge).numpy()
+        mine, recorded = torch.as_tensor(simulated[:length, e]), torch.as_tensor(recording.q[first:first + length])
+        error = angle_error(mine, recorded, hinge).numpy()
         predicted = np.isfinite(error).all(axis=1)
         rms.append({"episode": int(recording.episode[first]), "rows": length, "predicted_rows": int(predicted.sum()),
                     "rms": [float(np.sqrt(np.mean(error[predicted, j] ** 2))) for j in range(error.shape[1])]})
+        if chain_of_arms:  # each arm's angle from upright, as a rig's encoders on a chain measure it
+            arms = angle_error(mine[:, 1:].cumsum(dim=1), recorded[:, 1:].cumsum(dim=1), hinge[1:]).numpy()
+            rms[-1]["arm_rms"] = [float(np.sqrt(np.mean(arms[predicted, j] ** 2))) for j in range(arms.shape[1])]
     return simulated, rms
 
 
@@ -598,8 +757,9 @@ def report_prediction(prediction: dict, labels: list[str]):
         print(f"  {path}")
         for e in episodes:
             cut = "" if e["predicted_rows"] == e["rows"] else f" (the env ended after {e['predicted_rows']} rows)"
+            arms = "".join(f"; arm {k} from upright {value:.4g}" for k, value in enumerate(e.get("arm_rms", []), 1))
             print(f"    episode {e['episode']:g}, {e['rows']} rows: "
-                  + ", ".join(f"{label} {value:.4g}" for label, value in zip(labels, e["rms"])) + cut)
+                  + ", ".join(f"{label} {value:.4g}" for label, value in zip(labels, e["rms"])) + arms + cut)
 
 
 def report(result: dict, equally_good: int):
@@ -610,8 +770,10 @@ def report(result: dict, equally_good: int):
     for name, value in result["fitted"].items():
         stage, error = result["stage"][name], result["standard_error"][name]
         ratio = f"{value / stage:13.3f}" if stage else f"{'-':>13}"
-        flag = "  not identified by the recording (its standard error)" if name in result["not_identified"] else ""
-        print(f"{name:<26} {stage:10.4g} {value:10.4g} {error:15.2g} {ratio}{flag}")
+        flags = (["not identified by the recording (its standard error)"] if name in result["not_identified"] else []
+                 ) + ([f"outside physical sense: {result['implausible'][name]}"] if name in result["implausible"]
+                      else [])
+        print(f"{name:<26} {stage:10.4g} {value:10.4g} {error:15.2g} {ratio}" + "".join(f"  {f}" for f in flags))
     print("residual (RMS over the windows): " + ", ".join(f"{k} {v:.4g}" for k, v in result["residual_rms"].items()))
 
 

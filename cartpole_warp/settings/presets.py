@@ -136,6 +136,20 @@ def load_preset(preset: str, task: str | None = None, env_type: type | None = No
     raise_config_errors(f"preset {preset!r}", overrides_errors(data, env_type))
     require(task is None or data.get("task", task) == task,
             f"preset {preset!r} is for task {data.get('task')!r}, not {task!r}")
+    return with_paths_from(path.parent, data)
+
+
+def with_paths_from(folder: Path, data: dict) -> dict:
+    """A preset's ``env.sim.stage_path`` as a path that works from any folder: a relative one is the preset's
+    ``folder``'s file, unless that folder has none and the package has a stage of that name (``SimConfig.stage_path``:
+    ``multiarm_pendulum.usda``)."""
+    sim = data.get("env", {}).get("sim", {}) if isinstance(data.get("env"), dict) else {}
+    stage = sim.get("stage_path") if isinstance(sim, dict) else None
+    if not isinstance(stage, str) or not stage or Path(stage).is_absolute():
+        return data
+    beside = (folder / stage).resolve()
+    if beside.is_file() or not data_path("usd", stage).is_file():
+        sim["stage_path"] = str(beside)
     return data
 
 

@@ -1,22 +1,26 @@
 """The multi-arm pendulum benchmark (Kaheman, Fasel, Bramburger, Strom, Kutz, Brunton: "The Experimental Multi-Arm
 Pendulum on a Cart: A Benchmark System for Chaos, Learning, and Control", HardwareX 2023, arXiv 2205.06231; data and
 code github.com/dynamicslab/MultiArm-Pendulum, MIT licence): ``tools.sysid`` on a real rig's recordings, against the
-authors' own model.
+authors' own model, for each of its three rigs.
 
     git clone https://github.com/dynamicslab/MultiArm-Pendulum
     python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 1   # writes logs/multiarm/arms1/
     python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 2
+    python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 3
+    python -m cartpole_warp.tools.multiarm --repo MultiArm-Pendulum --arms 3 \\
+        --from logs/multiarm/arms3/fit/sysid_result.yaml   # go on from the last fit
 
-The repository's ``ParameterEstimation/<Single|Double>Pendulum/*DataForParameterEstimation.mat`` hold free swings of
-the arms recorded at 1 kHz with the cart held still, cut into segments: ``Y_id`` to fit, ``Y_vad`` to validate (per
-arm its angle and angular velocity, each from upright with pi hanging, the second arm's from upright too). Each
-becomes a recording of this project (``evaluation.trajectories``: one episode per segment, the pole angles relative
-to the body below, the cart at 0, no action), written as ``y_id.npz`` and ``y_vad.npz``. ``tools.sysid`` fits the
-rig's preset (``configs/multiarm_pendulum.yaml``, ``multiarm_double_pendulum.yaml``: the rig's stage, its cart held)
-to ``y_id.npz`` alone, and simulates every segment of both from its first sample over its whole length. The authors'
-model (their ``SinglePendulumODE.m``, ``DoublePendulumODE_Mounted.m`` with their ``EstimatedParameters_*.mat``,
-integrated by scipy's ``solve_ivp``) predicts the same segments; the table gives each one's RMS angle error per arm
-(each arm's angle from upright, as the authors' data give it) for both.
+The repository's ``ParameterEstimation/<Single|Double|Triple>Pendulum/*DataForParameterEstimation.mat`` hold free
+swings of the arms recorded at 1 kHz with the cart held still, cut into segments: ``Y_id`` to fit, ``Y_vad`` to
+validate (per arm its angle from upright, pi hanging, then per arm its angular velocity). Each becomes a recording
+of this project (``evaluation.trajectories``: one episode per segment, each pole's angle relative to the arm below,
+the cart at 0, no action), written as ``y_id.npz`` and ``y_vad.npz``. ``tools.sysid`` fits the rig's preset
+(``configs/multiarm_pendulum.yaml``, ``multiarm_double_pendulum.yaml``, ``multiarm_triple_pendulum.yaml``: the rig's
+stage from ``engine.stages``, its cart held) to ``y_id.npz`` alone until it converges, and simulates every segment of
+both from its first sample over its whole length. The authors' model (their ``SinglePendulumODE.m``,
+``DoublePendulumODE_Mounted.m``, ``TriplePendulumODE_Mounted.m``: ``chain_model``, with their
+``EstimatedParameters_*.mat``, integrated by scipy's ``solve_ivp``) predicts the same segments; the table gives each
+one's RMS angle error per arm (each arm's angle from upright, as the authors' data give it) for both.
 """
 
 from __future__ import annotations
@@ -29,15 +33,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import tasks
 from ..cli import clean_errors, parse, quiet_libraries
 from ..engine.scene import StageError
 from ..evaluation.trajectories import Recording, write_trajectory
-from ..identification import sysid
+from ..identification import chain, sysid
+from ..identification.sysid import arm_angles
 from ..settings.config import ConfigError, require
 from ..settings.files import write_text
 
-POLES = ("pole", "pole2")
-"""The joint roles of the arms, from the cart up."""
 SEGMENTS = ("Y_id", "Y_vad")
 """The data file's segment lists: to fit and to validate on."""
 ODE_TOLERANCE = 1e-9
@@ -54,8 +58,12 @@ class Rig:
     task: str
     preset: str
     fit: tuple[str, ...]
-    """What a free swing tells (each arm's mass being the stage's): the inertia about the hinge, through a centre of
-    mass or an inertia scale, the joints' damping and friction."""
+    """What a free swing tells (``identification.chain``): each arm's inertia about its hinge and first moment, up to
+    one common factor, through 2N - 1 of the N arms' centres of mass and inertia scales, and the joints' damping and
+    friction. The masses are the stage's, and one centre or scale is held at the stage's value to fix the factor:
+    the top arm's centre of mass where its share of the chain's terms is small (one and two arms), else the top
+    arm's inertia scale, a small part of that arm's inertia about its hinge (three arms: holding arm 3's centre
+    at the stage's, half the authors' estimate, leaves no physical solution; the fit took arm 1's inertia to 0)."""
     estimate_names: tuple[str, ...]
     """The order of the authors' ``EstimatedParameters``."""
 
@@ -69,6 +77,12 @@ RIGS = {
            ("pole_com_m", "pole_inertia_scale", "pole2_inertia_scale", "pole_damping_n_m_s_rad",
             "pole2_damping_n_m_s_rad", "pole_friction_n_m", "pole2_friction_n_m"),
            ("m1", "m2", "a1", "a2", "L1", "I1", "I2", "k1", "k2", "g")),
+    3: Rig("TriplePendulum", "TriplePendulumDataForParameterEstimation.mat", "EstimatedParameters_TriplePendulum.mat",
+           "cart-three-pole-swingup", "multiarm_triple_pendulum",
+           ("pole_com_m", "pole2_com_m", "pole3_com_m", "pole_inertia_scale", "pole2_inertia_scale",
+            "pole_damping_n_m_s_rad", "pole2_damping_n_m_s_rad", "pole3_damping_n_m_s_rad", "pole_friction_n_m",
+            "pole2_friction_n_m", "pole3_friction_n_m"),
+           ("m1", "m2", "m3", "a1", "a2", "a3", "L1", "L2", "I1", "I2", "I3", "k1", "k2", "k3", "g")),
 }
 
 
@@ -80,16 +94,20 @@ class MultiarmArgs:
     repo: Path | None = None
     """A clone of github.com/dynamicslab/MultiArm-Pendulum."""
     arms: int = 1
-    """1: the single pendulum's recordings, 2: the double pendulum's."""
+    """The rig: 1, 2 or 3 arms (the repository's single, double and triple pendulum recordings)."""
     output: Path | None = None
     """Folder for the recordings, the fit (``fit/``) and multiarm_result.yaml (default: logs/multiarm/arms<N>)."""
     window_steps: list[int] = field(default_factory=lambda: [100, 500])
     """Env steps (1 ms each) of the fit's shooting windows: a fit with each in turn (``tools.sysid``)."""
     guesses: int = 1
     """Starting guesses fitted at once (the first: the stage's values)."""
-    iterations: int = 7
-    """Levenberg-Marquardt iterations with each window length."""
-    window_stride: int = 2
+    iterations: int = 60
+    """At most this many Levenberg-Marquardt iterations with each window length (a fit ends once converged)."""
+    tolerance: float = sysid.SysidArgs.tolerance
+    """Converged: a Gauss-Newton step would lower the loss by less than this fraction of it (``tools.sysid``)."""
+    start_from: Path | None = None
+    """An earlier fit's ``multiarm_result.yaml`` or ``sysid_result.yaml`` (``--from``): its values start the fit."""
+    window_stride: int = 4
     """Fit every this-many-th window of ``Y_id`` (1: all)."""
     device: str = "cpu"
     """Where the fit runs: 'cpu' or 'cuda:N'."""
@@ -135,46 +153,23 @@ def as_recording(segments: list[np.ndarray], dt: float, arms: int) -> Recording:
                      episode=np.concatenate([np.full(s.shape[1], float(k)) for k, s in enumerate(segments)]))
 
 
-def arm_angles(q: np.ndarray) -> np.ndarray:
-    """Each arm's angle from upright (the benchmark's) from a cart task's joint positions (..., 1 + arms)."""
-    return np.cumsum(q[..., 1:], axis=-1)
-
-
-def single_pendulum(p: dict):
-    """The authors' ``SinglePendulumODE.m``: phi'' = -(k1 phi' - a1 g m1 sin phi) / (m1 a1^2 + I1)."""
-
-    a1, m1, inertia, k1, g = (p[name] for name in RIGS[1].estimate_names)
-
-    def f(_t, y):
-        return [y[1], -(k1 * y[1] - a1 * g * m1 * np.sin(y[0])) / (m1 * a1**2 + inertia)]
-
-    return f
-
-
-def double_pendulum(p: dict):
-    """The authors' ``DoublePendulumODE_Mounted.m`` (state phi1, phi2, phi1', phi2', both from upright), as their
-    symbolic derivation printed it."""
-    m1, m2, a1, a2, L1, I1, I2, k1, k2, g = (p[name] for name in RIGS[2].estimate_names)
+def chain_model(p: dict, arms: int):
+    """The authors' equations of motion of ``arms`` arms on their held cart (``SinglePendulumODE.m``,
+    ``DoublePendulumODE_Mounted.m``, ``TriplePendulumODE_Mounted.m``: their symbolic toolbox's Lagrangian of the
+    chain with viscous joints; state: each arm's angle from upright, then each one's rate) in the chain's matrix form
+    (``identification.chain``), ``p`` their ``EstimatedParameters`` by name."""
+    terms = p | {f"c{k}": 0.0 for k in range(1, arms + 1)}
+    inertia, first, coupling = chain.moments(terms)
+    damping, g = np.array([p[f"k{k}"] for k in range(1, arms + 1)]), p["g"]
 
     def f(_t, y):
-        p1, p2, w1, w2 = y
-        s12, c12 = np.sin(p1 - p2), np.cos(p1 - p2)
-        den = (I1 * I2 + L1**2 * a2**2 * m2**2 + I2 * L1**2 * m2 + I2 * a1**2 * m1 + I1 * a2**2 * m2
-               - L1**2 * a2**2 * m2**2 * c12**2 + a1**2 * a2**2 * m1 * m2)
-        dw1 = -(I2 * w1 * k1 + I2 * w1 * k2 - I2 * w2 * k2 + a2**2 * w1 * k1 * m2 + a2**2 * w1 * k2 * m2
-                - a2**2 * w2 * k2 * m2 + L1 * a2**3 * w2**2 * m2**2 * s12 - (L1 * a2**2 * g * m2**2 * np.sin(p1)) / 2
-                - I2 * L1 * g * m2 * np.sin(p1) - (L1 * a2**2 * g * m2**2 * np.sin(p1 - 2 * p2)) / 2
-                - I2 * a1 * g * m1 * np.sin(p1) + (L1**2 * a2**2 * w1**2 * m2**2 * np.sin(2 * p1 - 2 * p2)) / 2
-                + L1 * a2 * w1 * k2 * m2 * c12 - L1 * a2 * w2 * k2 * m2 * c12 + I2 * L1 * a2 * w2**2 * m2 * s12
-                - a1 * a2**2 * g * m1 * m2 * np.sin(p1)) / den
-        dw2 = (I1 * w1 * k2 - I1 * w2 * k2 + L1**2 * w1 * k2 * m2 - L1**2 * w2 * k2 * m2 + a1**2 * w1 * k2 * m1
-               - a1**2 * w2 * k2 * m1 + L1**3 * a2 * w1**2 * m2**2 * s12 + L1**2 * a2 * g * m2**2 * np.sin(p2)
-               + I1 * a2 * g * m2 * np.sin(p2) + (L1**2 * a2**2 * w2**2 * m2**2 * np.sin(2 * p1 - 2 * p2)) / 2
-               + L1 * a2 * w1 * k1 * m2 * c12 + L1 * a2 * w1 * k2 * m2 * c12 - L1 * a2 * w2 * k2 * m2 * c12
-               - L1**2 * a2 * g * m2**2 * c12 * np.sin(p1) + I1 * L1 * a2 * w1**2 * m2 * s12
-               + a1**2 * a2 * g * m1 * m2 * np.sin(p2) + L1 * a1**2 * a2 * w1**2 * m1 * m2 * s12
-               - L1 * a1 * a2 * g * m1 * m2 * c12 * np.sin(p1)) / den
-        return [w1, w2, dw1, dw2]
+        angle, rate = np.asarray(y[:arms]), np.asarray(y[arms:])
+        apart = angle[:, None] - angle[None, :]
+        mass = np.where(np.eye(arms, dtype=bool), np.diag(inertia), coupling * np.cos(apart))
+        torque = -damping * np.diff(rate, prepend=0.0)  # each joint's, on the arm above it; its opposite below
+        generalized = torque - np.append(torque[1:], 0.0)
+        force = generalized - (coupling * np.sin(apart)) @ rate**2 + g * first * np.sin(angle)
+        return np.concatenate([rate, np.linalg.solve(mass, force)])
 
     return f
 
@@ -184,7 +179,7 @@ def authors_prediction(recording: Recording, arms: int, estimates: dict) -> list
     length, as their objective function does: per episode (samples, arms) angles from upright."""
     from scipy.integrate import solve_ivp
 
-    model = single_pendulum(estimates) if arms == 1 else double_pendulum(estimates)
+    model = chain_model(estimates, arms)
     out = []
     for episode in np.unique(recording.episode):
         rows = recording.episode == episode
@@ -213,26 +208,28 @@ def fitted_arm_angles(simulated: np.ndarray, recording: Recording) -> list[np.nd
 def run(args: MultiarmArgs) -> dict:
     """Convert, fit, predict both ways; print the table and write multiarm_result.yaml. Returns the result."""
     require(args.repo is not None, "--repo DIR is required: a clone of github.com/dynamicslab/MultiArm-Pendulum")
-    require(args.arms in RIGS, f"--arms must be one of {sorted(RIGS)}")
+    require(args.arms in RIGS, f"--arms {args.arms}: the repository holds rigs of {', '.join(map(str, RIGS))} arms")
     rig, folder = RIGS[args.arms], args.repo / "ParameterEstimation" / RIGS[args.arms].folder
     output = args.output or Path("logs/multiarm") / f"arms{args.arms}"
     recordings = read_segments(folder / rig.data, args.arms)
     estimates = dict(zip(rig.estimate_names, np.asarray(load_mat(folder / rig.estimates)["EstimatedParameters"])
                          .reshape(-1).tolist()))
     paths = {}
+    roles = tasks.get(rig.task).env_class.joint_roles
     for name, recording in recordings.items():
-        paths[name] = write_trajectory(output / f"{name.lower()}.npz", recording, ("cart", *POLES[:args.arms]),
-                                       [True] + [False] * args.arms)
+        paths[name] = write_trajectory(output / f"{name.lower()}.npz", recording, roles, [True] + [False] * args.arms)
     fit_args = sysid.SysidArgs(
         trajectory=paths["Y_id"], task=rig.task, config=rig.preset, fit=list(rig.fit), validate=[paths["Y_vad"]],
         window_steps=args.window_steps, window_stride=args.window_stride, guesses=args.guesses,
-        iterations=args.iterations, device=args.device, output=output / "fit")
+        iterations=args.iterations, tolerance=args.tolerance, start_from=args.start_from, device=args.device,
+        output=output / "fit")
     start = time.perf_counter()
     fitted, positions = sysid.fit_and_predict(fit_args)
-    result = {"arms": args.arms, "fit_seconds": fitted["seconds"], "total_seconds": 0.0, "fitted": fitted["fitted"],
-              "authors_estimates": estimates,
-              "what_a_swing_tells": {"ours": invariants(stage_terms(fit_args, fitted["fitted"]), args.arms),
-                                     "authors": invariants(estimates | {"c1": 0.0, "c2": 0.0}, args.arms)},
+    result = {"task": rig.task, "arms": args.arms, "fit_seconds": fitted["seconds"], "total_seconds": 0.0,
+              "fitted": fitted["fitted"], "authors_estimates": estimates,
+              "what_a_swing_tells": {"ours": chain.invariants(stage_terms(fit_args, fitted["fitted"])),
+                                     "authors": chain.invariants(estimates | {f"c{k}": 0.0 for k in
+                                                                              range(1, args.arms + 1)})},
               "segments": {}}
     for name, recording in recordings.items():
         result["segments"][name] = [
@@ -250,43 +247,15 @@ def run(args: MultiarmArgs) -> dict:
 
 
 def stage_terms(args: sysid.SysidArgs, fitted: dict) -> dict:
-    """The rig's stage with the ``fitted`` physics in the authors' terms: per arm k its mass ``mk``, centre of mass
-    ``ak`` and inertia about it ``Ik``, its joint's damping ``kk`` and friction ``ck``, arm 1's length ``L1`` (hinge
-    to hinge) and ``g``."""
+    """The rig's stage with the ``fitted`` physics in the authors' terms (``identification.chain.chain_terms``)."""
     import torch
-
-    from .. import tasks
 
     env = tasks.make(args.task, num_envs=1, device="cpu", preset=args.config)
     env.set_physical_params(**{name: torch.tensor([value]) for name, value in fitted.items()})
     values = {name: float(v[0]) for name, v in env.physical_params().items()}
-    terms = {"g": values["gravity_m_s2"]}
-    for k, role in enumerate(POLES[:len(env.joint_roles) - 1], start=1):
-        terms |= {f"m{k}": values[f"{role}_mass_kg"], f"a{k}": values[f"{role}_com_m"],
-                  f"I{k}": values[f"{role}_inertia_kg_m2"], f"k{k}": values[f"{role}_damping_n_m_s_rad"],
-                  f"c{k}": values[f"{role}_friction_n_m"]}
-    if len(env.joint_roles) > 2:
-        hinge = env.scene.model.joint_X_p.numpy()[env.scene.role_joints[2]][:3]
-        terms["L1"] = float(np.linalg.norm(hinge))
+    terms = chain.chain_terms(values, env.joint_roles, chain.hinge_spacings(env))
     env.close()
     return terms
-
-
-def invariants(terms: dict, arms: int) -> dict:
-    """What a free swing can tell of the physics (the equations of motion divided by arm 1's inertia about its hinge
-    J1): gravity's torque, the second arm's inertia and coupling, the joints' damping and friction, each per J1."""
-    g = terms["g"]
-    if arms == 1:
-        j1 = terms["I1"] + terms["m1"] * terms["a1"] ** 2
-        return {"m1 a1 g / J1 (1/s^2)": terms["m1"] * terms["a1"] * g / j1, "k1 / J1 (1/s)": terms["k1"] / j1,
-                "c1 / J1 (rad/s^2)": terms["c1"] / j1}
-    m1, m2, a1, a2, length = terms["m1"], terms["m2"], terms["a1"], terms["a2"], terms["L1"]
-    j1 = terms["I1"] + m1 * a1**2 + m2 * length**2
-    return {"J2 / J1": (terms["I2"] + m2 * a2**2) / j1, "m2 a2 L1 / J1": m2 * a2 * length / j1,
-            "(m1 a1 + m2 L1) g / J1 (1/s^2)": (m1 * a1 + m2 * length) * g / j1,
-            "m2 a2 g / J1 (1/s^2)": m2 * a2 * g / j1, "k1 / J1 (1/s)": terms["k1"] / j1,
-            "k2 / J1 (1/s)": terms["k2"] / j1, "c1 / J1 (rad/s^2)": terms["c1"] / j1,
-            "c2 / J1 (rad/s^2)": terms["c2"] / j1}
 
 
 def table(result: dict):
@@ -304,7 +273,8 @@ def table(result: dict):
 def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, StageError):
-        args = parse(MultiarmArgs, MultiarmArgs(), sys.argv[1:] if argv is None else argv, __doc__)
+        args = parse(MultiarmArgs, MultiarmArgs(), sys.argv[1:] if argv is None else argv, __doc__,
+                     aliases={"--from": "--start-from"})
         run(args)
     return 0
 

@@ -24,7 +24,8 @@ def main(argv: list[str] | None = None) -> int:
     quiet_libraries()
     with clean_errors(ConfigError, StageError):
         method = (sysid.__doc__ or "").partition("\n\n")[2]  # the library's docstring after its first paragraph
-        args = parse(sysid.SysidArgs, sysid.SysidArgs(), sys.argv[1:] if argv is None else argv, f"{__doc__}\n{method}")
+        args = parse(sysid.SysidArgs, sysid.SysidArgs(), sys.argv[1:] if argv is None else argv, f"{__doc__}\n{method}",
+                     aliases={"--from": "--start-from"})
         sysid.fit(args)
     return 0
 
