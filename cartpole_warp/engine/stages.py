@@ -5,7 +5,7 @@ dm_control's cartpole (``dmc_stage_text(n)``: the model of its ``swingup`` task,
 ``three_poles``), and the multi-arm pendulum rig with 1, 2 or 3 arms (``multiarm_stage_text(n)``). A stage of your
 own: a ``Cartpole`` with its ``Arm``s, and ``stage_text(spec)``.
 
-Both stages follow one convention, so the same loader and the same closed-form check apply: up axis Z, metres,
+Every stage follows one convention, so the same loader and the same closed-form check apply: up axis Z, metres,
 kilograms; the articulation root on /cartpole; a fixed rail body (``railJoint``); the cart slides along Y
 (PrismaticJoint ``cartJoint``); the pole hinges about X (RevoluteJoint ``poleJoint``), upright at angle 0. Every
 body's mass, centre of mass and diagonal inertia are authored (MassAPI), derived here from its shape and mass, so
