@@ -19,13 +19,16 @@ differentiable rollout: ``--guesses`` guesses, each parameter drawn log-uniforml
 value, fitted at once by Levenberg-Marquardt on the parameters (the log of those the stage sets; a damping or a
 friction, 0 on the stage, in 1% of its joint's natural unit, kept >= 0) and every window's start (the gradient
 through the simulator's adjoints, the Jacobian by forward differences of the batched rollout, the windows' starts
-eliminated per window). The guess that fits best is printed against the stage's values with the residual, plotted
-(recorded against simulated positions, PNG), tried on whole episodes (each episode of the recording and of the
-``--validate`` recordings simulated from its first row over its whole length: RMS error per joint, a plot each) and
-written as a preset whose
-randomization ranges lie ``--randomize`` around the fit (0: exactly the fit) for ``train.py --config FILE`` and
-``play.py --config FILE``. A parameter whose standard error exceeds 1% of its fit is reported as not identified by
-the recording. The recording must be of one physics: no domain randomization or action delay while it was made (the
+eliminated per window), until an undamped Gauss-Newton step would lower the loss by less than ``--tolerance`` of it
+(or ``--iterations`` per window length, saying so); ``--from`` starts from an earlier fit. Before it fits, a chain of
+arms on a held cart is told what the ``--fit`` list leaves to the stage (``identification.chain``). The guess that
+fits best is printed against the stage's values with the residual, plotted (recorded against simulated positions,
+PNG), tried on whole episodes (each episode of the recording and of the ``--validate`` recordings simulated from its
+first row over its whole length: RMS error per joint, and for a chain of arms per arm from upright, a plot and a
+``sysid_simulated_<n>.npz`` each) and written as a preset whose randomization ranges lie ``--randomize`` around the
+fit (0: exactly the fit) for ``train.py --config FILE`` and ``play.py --config FILE``. A parameter whose standard
+error exceeds 1% of its fit is reported as not identified by the recording, and one outside physical sense (a scale
+near 0, a centre of mass beyond its body) is flagged. The recording must be of one physics: no domain randomization or action delay while it was made (the
 fit has neither).
 """
 
