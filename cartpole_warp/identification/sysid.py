@@ -28,8 +28,8 @@ first row over its whole length: RMS error per joint, and for a chain of arms pe
 ``sysid_simulated_<n>.npz`` each) and written as a preset whose randomization ranges lie ``--randomize`` around the
 fit (0: exactly the fit) for ``train.py --config FILE`` and ``play.py --config FILE``. A parameter whose standard
 error exceeds 1% of its fit is reported as not identified by the recording, and one outside physical sense (a scale
-near 0, a centre of mass beyond its body) is flagged. The recording must be of one physics: no domain randomization or action delay while it was made (the
-fit has neither).
+near 0, a centre of mass beyond its body) is flagged. The recording must be of one physics: no domain randomization
+or action delay while it was made (the fit has neither).
 """
 
 from __future__ import annotations
