@@ -128,7 +128,7 @@ class PopulationArgs:
 class TrainArgs(Generic[TaskT]):
     cfg: Annotated[TrainConfig[TaskT], tyro.conf.arg(name="")]
     config: Annotated[str | None, tyro.conf.arg(help=(
-        f"Preset to start from: a name under configs/ ({', '.join(presets())}) or a YAML file of overrides. "
+        f"Preset in configs/ ({', '.join(presets())}) or a YAML file. "
         "Precedence: dataclass defaults < the task's defaults < preset (or a resumed run's config.yaml) < flags."
     ))] = None
     resume: str | None = None
