@@ -748,7 +748,8 @@ def predict(args: SysidArgs, problem: Problem, fitted: dict, recording: Recordin
         rms.append({"episode": int(recording.episode[first]), "rows": length, "predicted_rows": int(predicted.sum()),
                     "rms": [float(np.sqrt(np.mean(error[predicted, j] ** 2))) for j in range(error.shape[1])]})
         if chain_of_arms:  # each arm's angle from upright, as a rig's encoders on a chain measure it
-            arms = angle_error(mine[:, 1:].cumsum(dim=1), recorded[:, 1:].cumsum(dim=1), hinge[1:]).numpy()
+            arms = angle_error(torch.as_tensor(arm_angles(mine.numpy())), torch.as_tensor(arm_angles(recorded.numpy())),
+                               hinge[1:]).numpy()
             rms[-1]["arm_rms"] = [float(np.sqrt(np.mean(arms[predicted, j] ** 2))) for j in range(arms.shape[1])]
     return simulated, rms
 
