@@ -344,17 +344,22 @@ PROGRESS_EVERY_S = 10.0
 
 def with_progress(on_step: Callable[[int], None], steps: int,
                   every_s: float = PROGRESS_EVERY_S) -> Callable[[int], None]:
-    """``on_step`` that also prints, every ``every_s`` seconds, the steps done and an estimate of the time left."""
+    """``on_step`` that also prints, every ``every_s`` seconds, the steps done and an estimate of the time left at
+    the pace of the steps after the first (which loads kernels and, on CUDA, captures the step's graph)."""
     start = time.perf_counter()
     next_s = start + every_s
+    first_done_s = start
 
     def step(k: int):
-        nonlocal next_s
+        nonlocal next_s, first_done_s
         on_step(k)
         now = time.perf_counter()
+        if k == 1:
+            first_done_s = now
         if 0 < k < steps and now >= next_s:
-            print(f"  {k}/{steps} env steps in {now - start:.0f} s, about {(now - start) / k * (steps - k):.0f} s "
-                  "left", flush=True)
+            left = (f", about {(now - first_done_s) / (k - 1) * (steps - k):.0f} s left" if k > 1
+                    else " (the first step warms up)")
+            print(f"  {k}/{steps} env steps in {now - start:.0f} s{left}", flush=True)
             next_s = now + every_s
 
     return step

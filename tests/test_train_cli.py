@@ -642,16 +642,19 @@ def test_newtons_isaac_derived_stage_trains_to_solved(tmp_path):
 
 
 def test_a_long_rollout_says_how_far_it_is(capsys):
-    """play.py's rollout prints its progress every PROGRESS_EVERY_S seconds (here every step: 0 s)."""
+    """play.py's rollout prints its progress every PROGRESS_EVERY_S seconds (here every step: 0 s). The time left
+    is the pace of the steps after the first: a first step of 1 s (a warm-up) and instant ones after it leave 0 s,
+    where counting the first would say 4 s for 8 steps."""
     from cartpole_warp.play import with_progress
 
     seen = []
-    step = with_progress(seen.append, 3, every_s=0.0)
-    for k in range(4):
+    step = with_progress(lambda k: (seen.append(k), k == 1 and time.sleep(1.0)), 10, every_s=0.0)
+    for k in range(11):
         step(k)
     lines = capsys.readouterr().out.splitlines()
-    assert seen == [0, 1, 2, 3] and len(lines) == 2, lines
-    assert re.fullmatch(r"  1/3 env steps in \d+ s, about \d+ s left", lines[0]), lines
+    assert seen == list(range(11)) and len(lines) == 9, lines
+    assert re.fullmatch(r"  1/10 env steps in [12] s \(the first step warms up\)", lines[0]), lines
+    assert re.fullmatch(r"  2/10 env steps in [12] s, about 0 s left", lines[1]), lines
 
 
 def test_play_writes_the_usd_recording_only_when_asked(run_main, tmp_path):
