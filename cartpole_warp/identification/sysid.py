@@ -69,6 +69,10 @@ EQUALLY_GOOD = 1.1
 INITIAL_LM_LAMBDA = 1e-2
 """Levenberg-Marquardt's first lambda, the damping of its steps (per guess: divided by 3 after an iteration whose
 step lowers the loss, times 4 after each step tried that does not)."""
+LM_LAMBDA_RANGE = (1e-9, 1e9)
+"""The lambdas' bounds. An iteration that lowers no guess's loss with every lambda at the largest ends the fit as
+stalled: its steps are then too short to change the loss (a minimum at the rollouts' float resolution, or a
+Jacobian that misleads)."""
 JACOBIAN_STEP = 1e-3
 """Forward-difference step of the Jacobian's columns (in units of each signal's spread, and of a log-parameter)."""
 IDENTIFIED_WITHIN = 0.01
@@ -130,7 +134,7 @@ class SysidArgs:
     iterations: int = 30
     """At most this many Levenberg-Marquardt iterations with each window length (each: the gradient by one backward
     pass through the simulator, the Jacobian by forward differences, a step on the parameters and every window's
-    start); a fit ends earlier once converged (``--tolerance``), and says so either way."""
+    start); a fit ends earlier once converged (``--tolerance``) or stalled (no step lowers the loss), and says which."""
     tolerance: float = 1e-4
     """Converged: an undamped Gauss-Newton step from the best guess would lower its loss by less than this fraction
     of it (the local model sees no further fall), or its residuals are below float32's resolution."""
@@ -482,10 +486,10 @@ class WindowFit:
                 new_starts = torch.where(better[self.guess_of][:, None], trial_starts, new_starts)
                 new_loss = torch.where(better, trial_loss, new_loss)
                 improved |= better
-                lm_lambda = torch.where(improved, lm_lambda, lm_lambda * 4).clamp(1e-9, 1e9)
+                lm_lambda = torch.where(improved, lm_lambda, lm_lambda * 4).clamp(*LM_LAMBDA_RANGE)
                 if improved.all():
                     break
-            lm_lambda = torch.where(improved, lm_lambda / 3, lm_lambda).clamp(1e-9, 1e9)
+            lm_lambda = torch.where(improved, lm_lambda / 3, lm_lambda).clamp(*LM_LAMBDA_RANGE)
         resolved = float(loss[best]) <= 0.5 * RESOLVED**2 * first[0].shape[1] * self.num_windows
         return (new_theta, new_starts, lm_lambda, new_loss.min().item(),
                 0.0 if resolved else float(fall[best] / loss[best].clamp(min=1e-30)))
@@ -665,8 +669,8 @@ def check_args(args: SysidArgs):
 def fit_windows(problem: Problem, args: SysidArgs, start: float
                 ) -> tuple[WindowFit, torch.Tensor, torch.Tensor, list[dict]]:
     """Levenberg-Marquardt on windows of each of ``args.window_steps`` in turn, each from the last one's parameters
-    (the first from the starting guesses), until converged or ``args.iterations``, printing its progress; the last
-    fit, its parameters and windows' starts, and per window length its iterations and whether it converged."""
+    (the first from the starting guesses), until converged, stalled or ``args.iterations``, printing its progress;
+    the last fit, its parameters and windows' starts, and per window length its iterations and how it ended."""
     theta, stages = None, []
     for steps in args.window_steps:
         fitter = WindowFit(problem, args, steps)
@@ -676,19 +680,27 @@ def fit_windows(problem: Problem, args: SysidArgs, start: float
               f"{args.guesses} guesses = {fitter.num_envs} envs on {fitter.device}; fitting "
               f"{', '.join(problem.names)}", flush=True)
         lm_lambda = torch.full((args.guesses,), INITIAL_LM_LAMBDA, device=fitter.device)
-        losses, fall = [], math.inf
+        losses, fall, stalled = [], math.inf, False
         for it in range(args.iterations):
             theta, starts, lm_lambda, best_loss, fall = fitter.step(theta, starts, lm_lambda)
+            stalled = bool(losses) and best_loss >= losses[-1] and float(lm_lambda.min()) >= LM_LAMBDA_RANGE[1]
             losses.append(best_loss)
             print(f"  iteration {it + 1}/{args.iterations}: best loss {best_loss:.3e}, Gauss-Newton's predicted fall "
                   f"{fall:.1e} of it ({time.perf_counter() - start:.1f} s)", flush=True)
-            if fall <= args.tolerance:
+            if fall <= args.tolerance or stalled:
                 break
-        stages.append({"window_steps": steps, "iterations": len(losses), "converged": fall <= args.tolerance,
-                       "predicted_fall": fall})
-        print(f"  converged after {len(losses)} iterations" if fall <= args.tolerance else
-              f"  not converged in --iterations {args.iterations} (a step would lower the loss by {fall:.1e} of it, "
-              f"above --tolerance {args.tolerance:g}): raise --iterations, or go on with --from", flush=True)
+        converged = fall <= args.tolerance
+        stages.append({"window_steps": steps, "iterations": len(losses), "converged": converged,
+                       "stalled": stalled and not converged, "predicted_fall": fall})
+        if converged:
+            print(f"  converged after {len(losses)} iterations", flush=True)
+        elif stalled:
+            print(f"  stalled after {len(losses)} iterations: no step lowers the loss, Levenberg-Marquardt's damping "
+                  f"at its largest ({LM_LAMBDA_RANGE[1]:g}), though Gauss-Newton predicts a fall of {fall:.1e} of it: "
+                  "the loss is at the rollouts' float resolution, or the Jacobian misleads", flush=True)
+        else:
+            print(f"  not converged in --iterations {args.iterations} (a step would lower the loss by {fall:.1e} of "
+                  f"it, above --tolerance {args.tolerance:g}): raise --iterations, or go on with --from", flush=True)
     return fitter, theta, starts, stages
 
 

@@ -102,7 +102,8 @@ class MultiarmArgs:
     guesses: int = 1
     """Starting guesses fitted at once (the first: the stage's values)."""
     iterations: int = 60
-    """At most this many Levenberg-Marquardt iterations with each window length (a fit ends once converged)."""
+    """At most this many Levenberg-Marquardt iterations with each window length (a fit ends once converged or
+    stalled)."""
     tolerance: float = sysid.SysidArgs.tolerance
     """Converged: a Gauss-Newton step would lower the loss by less than this fraction of it (``tools.sysid``)."""
     start_from: Path | None = None
