@@ -330,6 +330,24 @@ def test_values_outside_physical_sense_are_flagged():
     env.close()
 
 
+def test_a_fit_that_no_step_improves_ends_as_stalled(tmp_path, capsys):
+    """With --tolerance 0 Gauss-Newton's test never holds on a noisy recording; once no step lowers the loss with
+    Levenberg-Marquardt's damping at its largest, the fit ends, saying so, instead of repeating one Jacobian to the
+    budget."""
+    path = free_swings(tmp_path / "swing.npz", HIDDEN, [1.2, 0.5], seconds=1.0)
+    recording = dict(np.load(path))
+    recording["pole_angle_rad"] += np.random.default_rng(0).normal(0.0, 1e-3, len(recording["time_s"]))
+    np.savez(path, **recording)
+    earlier = tmp_path / "earlier.yaml"
+    earlier.write_text(multiarm.yaml.safe_dump({"task": "cartpole-swingup", "fitted": HIDDEN}))
+    result = sysid.fit(sysid.SysidArgs(
+        trajectory=path, task="cartpole-swingup", config="multiarm_pendulum", window_steps=[200], window_stride=2,
+        guesses=1, iterations=60, tolerance=0.0, start_from=earlier, output=tmp_path / "fit"))
+    (stage,) = result["iterations"]
+    assert stage["stalled"] and not stage["converged"] and stage["iterations"] < 60, stage
+    assert f"stalled after {stage['iterations']} iterations: no step lowers the loss" in capsys.readouterr().out
+
+
 def test_a_fit_starts_from_an_earlier_result(tmp_path):
     """``--from`` an earlier result that holds the hidden physics: one iteration keeps it within 0.5% and finds the
     fit converged, where one iteration from the stage is more than 1% off and not converged; an earlier fit of
@@ -343,7 +361,7 @@ def test_a_fit_starts_from_an_earlier_result(tmp_path):
     assert sorted(started["fitted"]) == sorted(HIDDEN), "without --fit: the earlier fit's parameter list"
     for name, value in HIDDEN.items():
         assert started["fitted"][name] == pytest.approx(value, rel=0.005), name
-    assert started["iterations"] == [{"window_steps": 200, "iterations": 1, "converged": True,
+    assert started["iterations"] == [{"window_steps": 200, "iterations": 1, "converged": True, "stalled": False,
                                       "predicted_fall": started["iterations"][0]["predicted_fall"]}]
     cold = sysid.fit(sysid.SysidArgs(**args, fit=list(HIDDEN), output=tmp_path / "cold"))
     assert abs(cold["fitted"]["pole_inertia_scale"] / HIDDEN["pole_inertia_scale"] - 1) > 0.01
@@ -392,16 +410,18 @@ boxes', Coulomb friction in every joint."""
 def test_the_documented_triple_fit_recovers_a_synthetic_swing(tmp_path):
     """A free swing of the three-arm rig recorded by the env at 1 kHz on hidden physics is fitted back within 1%
     from the stage's values by the fit ``tools.multiarm --arms 3`` runs (its parameter list, windows and budget),
-    converged; the dampings, 0 in the recording, stay near 0."""
-    path = free_swings(tmp_path / "three.npz", HIDDEN_THREE, [(1.0, 0.4, -0.3), (-0.6, 0.8, 0.5), (2.0, -0.2, 0.1)],
+    converged or stalled at the rollouts' resolution; the dampings, 0 in the recording, stay near 0: at 1 rad/s under
+    1% of their joint's friction. The swings stay below chaos (a swing from 2 rad, chaotic, made the fit's last
+    digits, and arm 1's friction against its damping, differ between an AMD and an Intel CPU)."""
+    path = free_swings(tmp_path / "three.npz", HIDDEN_THREE, [(1.0, 0.4, -0.3), (-0.6, 0.8, 0.5), (0.3, -0.2, 0.2)],
                        seconds=3.0, arms=3)
     defaults, rig = multiarm.MultiarmArgs(), multiarm.RIGS[3]
     result = sysid.fit(sysid.SysidArgs(
         trajectory=path, task=rig.task, config=rig.preset, fit=list(rig.fit), window_steps=defaults.window_steps,
         window_stride=defaults.window_stride, guesses=defaults.guesses, iterations=defaults.iterations,
         tolerance=defaults.tolerance, output=tmp_path / "fit"))
-    assert all(stage["converged"] for stage in result["iterations"]), result["iterations"]
+    assert all(stage["converged"] or stage["stalled"] for stage in result["iterations"]), result["iterations"]
     for name, value in HIDDEN_THREE.items():
         assert result["fitted"][name] == pytest.approx(value, rel=0.01), name
     for k in ("", "2", "3"):
-        assert result["fitted"][f"pole{k}_damping_n_m_s_rad"] < 1e-6
+        assert result["fitted"][f"pole{k}_damping_n_m_s_rad"] * 1.0 < 0.01 * HIDDEN_THREE[f"pole{k}_friction_n_m"]
