@@ -754,13 +754,13 @@ def predict(args: SysidArgs, problem: Problem, fitted: dict, recording: Recordin
     chain_of_arms = arm_chain(problem)
     rms = []
     for e, (first, length) in enumerate(zip(firsts, lengths)):
-        mine, recorded = torch.as_tensor(simulated[:length, e]), torch.as_tensor(recording.q[first:first + length])
-        error = angle_error(mine, recorded, hinge).numpy()
+        mine, recorded = simulated[:length, e], recording.q[first:first + length]
+        error = angle_error(torch.as_tensor(mine), torch.as_tensor(recorded), hinge).numpy()
         predicted = np.isfinite(error).all(axis=1)
         rms.append({"episode": int(recording.episode[first]), "rows": length, "predicted_rows": int(predicted.sum()),
                     "rms": [float(np.sqrt(np.mean(error[predicted, j] ** 2))) for j in range(error.shape[1])]})
         if chain_of_arms:  # each arm's angle from upright, as a rig's encoders on a chain measure it
-            arms = angle_error(torch.as_tensor(arm_angles(mine.numpy())), torch.as_tensor(arm_angles(recorded.numpy())),
+            arms = angle_error(torch.as_tensor(arm_angles(mine)), torch.as_tensor(arm_angles(recorded)),
                                hinge[1:]).numpy()
             rms[-1]["arm_rms"] = [float(np.sqrt(np.mean(arms[predicted, j] ** 2))) for j in range(arms.shape[1])]
     return simulated, rms
